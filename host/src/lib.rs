@@ -1,0 +1,1 @@
+//! `needle-host`: the FE half of the simulation.

@@ -1,0 +1,1 @@
+//! `needle-bridge`: frames and commands between host and core.
