@@ -1,1 +1,3 @@
 //! `needle-host`: the FE half of the simulation.
+
+pub mod scene;

@@ -1,0 +1,611 @@
+//! Scene files: everything one insertion needs, in TOML.
+//!
+//! A scene names the robot, the gel, the needle, the interaction parameters, the inverse
+//! controller's tuning, the planned path (in the gel's rest configuration) and the obstacles.
+//! Every field and its unit is documented in `docs/scene-format.md`; units are mm, N, MPa, s, rad.
+//!
+//! Loading is two-stage: [`serde`] parses the TOML into [`Scene`] (unknown fields are errors,
+//! missing fields take the documented defaults), then [`Scene::validate`] checks every value
+//! against its physical meaning. Both stages report the file, the dotted field path and the reason
+//! ([`SceneError`]).
+//!
+//! The two benchmark scenes of `BENCHMARK.md` are embedded ([`Scene::builtin`]) so the CLI runs
+//! without any file.
+
+mod path;
+mod validate;
+
+pub use path::{PathError, SampledPath};
+
+use serde::{Deserialize, Serialize};
+use std::fmt;
+use std::path::{Path, PathBuf};
+
+/// The `simple` benchmark scene (BENCHMARK.md, Fig. 5), as shipped in `scenes/simple.toml`.
+pub const SIMPLE_TOML: &str = include_str!("../../../scenes/simple.toml");
+/// The `complex` benchmark scene (BENCHMARK.md, Fig. 6), as shipped in `scenes/complex.toml`.
+pub const COMPLEX_TOML: &str = include_str!("../../../scenes/complex.toml");
+
+/// A whole scene.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Scene {
+    /// Short name used in reports and output folders.
+    pub name: String,
+    /// Free text.
+    #[serde(default)]
+    pub description: String,
+    /// The robot holding the needle.
+    #[serde(default)]
+    pub robot: RobotSpec,
+    /// The deformable gel (tissue phantom).
+    #[serde(default)]
+    pub gel: GelSpec,
+    /// The flexible needle.
+    #[serde(default)]
+    pub needle: NeedleSpec,
+    /// Needle-gel interaction (puncture, friction, sliding constraints).
+    #[serde(default)]
+    pub interaction: InteractionSpec,
+    /// Inverse controller tuning.
+    #[serde(default)]
+    pub inverse: InverseSpec,
+    /// Numerical settings of the host and the constraint solver.
+    #[serde(default)]
+    pub solver: SolverSpec,
+    /// The planned path in the gel's rest configuration.
+    pub path: PathSpec,
+    /// Spherical obstacles embedded in the gel.
+    #[serde(default)]
+    pub obstacles: Vec<ObstacleSpec>,
+    /// How the target advances along the path.
+    #[serde(default)]
+    pub insertion: InsertionSpec,
+    /// What a run writes.
+    #[serde(default)]
+    pub output: OutputSpec,
+}
+
+/// A rigid transform given as a translation and roll-pitch-yaw angles.
+#[derive(Clone, Copy, Debug, Default, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct PoseSpec {
+    /// Translation [mm].
+    #[serde(default)]
+    pub translation: [f64; 3],
+    /// Rotation as roll, pitch, yaw about the fixed x, y, z axes (R = Rz·Ry·Rx) [rad].
+    #[serde(default)]
+    pub rpy: [f64; 3],
+}
+
+/// One standard Denavit-Hartenberg row, `T = Rz(q + theta) Tz(d) Tx(a) Rx(alpha)`.
+#[derive(Clone, Copy, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct DhRowSpec {
+    /// Joint angle offset θ [rad].
+    pub theta: f64,
+    /// Link offset d [mm].
+    pub d: f64,
+    /// Link length a [mm].
+    pub a: f64,
+    /// Link twist α [rad].
+    pub alpha: f64,
+}
+
+/// The robot: a preset or a DH table, its placement, the tool and the limits.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct RobotSpec {
+    /// Name of a built-in robot (`"rv1a"`); ignored when `dh` is given.
+    #[serde(default = "default_preset")]
+    pub preset: String,
+    /// A DH table of six rows, replacing the preset's.
+    #[serde(default)]
+    pub dh: Option<Vec<DhRowSpec>>,
+    /// Robot base in the world frame.
+    #[serde(default)]
+    pub base: PoseSpec,
+    /// Needle base B in the flange frame E (`B = E · tool`).
+    #[serde(default)]
+    pub tool: PoseSpec,
+    /// Lower joint limits [deg] (six values; default: the preset's).
+    #[serde(default)]
+    pub joint_min_deg: Option<Vec<f64>>,
+    /// Upper joint limits [deg] (six values; default: the preset's).
+    #[serde(default)]
+    pub joint_max_deg: Option<Vec<f64>>,
+    /// Joint speed limits [deg/s] (six values; default: the preset's).
+    #[serde(default)]
+    pub speed_limit_deg_s: Option<Vec<f64>>,
+    /// Control period: time between two steps [s].
+    #[serde(default = "default_dt")]
+    pub dt: f64,
+}
+
+impl Default for RobotSpec {
+    fn default() -> Self {
+        Self {
+            preset: default_preset(),
+            dh: None,
+            base: PoseSpec::default(),
+            tool: PoseSpec::default(),
+            joint_min_deg: None,
+            joint_max_deg: None,
+            speed_limit_deg_s: None,
+            dt: default_dt(),
+        }
+    }
+}
+
+/// An axis-aligned box meshed into tetrahedra.
+#[derive(Clone, Copy, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct BoxSpec {
+    /// Lower corner [mm].
+    pub min: [f64; 3],
+    /// Upper corner [mm].
+    pub max: [f64; 3],
+    /// Target number of nodes (the mesher picks divisions near it).
+    pub nodes: usize,
+}
+
+/// Which gel nodes are fixed (Dirichlet conditions, the paper's screws).
+#[derive(Clone, Debug, Default, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct FixedSpec {
+    /// Fix every node with z ≤ this height [mm] (the gel's bottom face: 0).
+    #[serde(default)]
+    pub below_z: Option<f64>,
+    /// Fix these node indices (0-based) as well.
+    #[serde(default)]
+    pub nodes: Vec<usize>,
+}
+
+/// The gel: its mesh, material and fixed region.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct GelSpec {
+    /// A generated box mesh (exclusive with `mesh`; the benchmark's 80×60×60 mm box of 1500 nodes
+    /// when neither is given).
+    #[serde(default, rename = "box")]
+    pub box_mesh: Option<BoxSpec>,
+    /// A Gmsh `.msh` v4 tetrahedral mesh, relative to the scene file (exclusive with `box`).
+    #[serde(default)]
+    pub mesh: Option<PathBuf>,
+    /// Young's modulus [MPa].
+    #[serde(default = "default_gel_e")]
+    pub young_modulus: f64,
+    /// Poisson's ratio [-], in (−1, 0.5).
+    #[serde(default = "default_gel_nu")]
+    pub poisson_ratio: f64,
+    /// Mass density [t/mm³] (1000 kg/m³ = 1e-9 t/mm³).
+    #[serde(default = "default_gel_rho")]
+    pub density: f64,
+    /// Fixed nodes.
+    #[serde(default = "default_fixed")]
+    pub fixed: FixedSpec,
+}
+
+impl Default for GelSpec {
+    fn default() -> Self {
+        Self {
+            box_mesh: Some(BoxSpec {
+                min: [260.0, -30.0, 0.0],
+                max: [340.0, 30.0, 60.0],
+                nodes: 1500,
+            }),
+            mesh: None,
+            young_modulus: default_gel_e(),
+            poisson_ratio: default_gel_nu(),
+            density: default_gel_rho(),
+            fixed: default_fixed(),
+        }
+    }
+}
+
+/// The needle: a straight rod of beams, clamped at its base to the robot's tool frame.
+#[derive(Clone, Copy, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct NeedleSpec {
+    /// Length from base to tip [mm].
+    #[serde(default = "default_needle_length")]
+    pub length: f64,
+    /// Outer diameter of the solid circular section [mm].
+    #[serde(default = "default_needle_diameter")]
+    pub diameter: f64,
+    /// Young's modulus [MPa].
+    #[serde(default = "default_needle_e")]
+    pub young_modulus: f64,
+    /// Poisson's ratio [-].
+    #[serde(default = "default_needle_nu")]
+    pub poisson_ratio: f64,
+    /// Mass density [t/mm³] (steel: 7.85e-9).
+    #[serde(default = "default_needle_rho")]
+    pub density: f64,
+    /// Number of beam elements.
+    #[serde(default = "default_needle_beams")]
+    pub beams: usize,
+}
+
+impl Default for NeedleSpec {
+    fn default() -> Self {
+        Self {
+            length: default_needle_length(),
+            diameter: default_needle_diameter(),
+            young_modulus: default_needle_e(),
+            poisson_ratio: default_needle_nu(),
+            density: default_needle_rho(),
+            beams: default_needle_beams(),
+        }
+    }
+}
+
+/// Needle-gel interaction: the paper's constraints φ (contact, puncture) and ψ (sliding).
+#[derive(Clone, Copy, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct InteractionSpec {
+    /// Puncture threshold p_f: the tip's normal contact force above which the surface gives way [N].
+    #[serde(default = "default_pf")]
+    pub puncture_force: f64,
+    /// Coulomb friction coefficient μ_s of the tip on the gel surface [-].
+    #[serde(default = "default_mu_s")]
+    pub surface_friction: f64,
+    /// Shaft friction coefficient μ_n of each sliding point (axial force ≤ μ_n·lateral force + r_0) [-].
+    #[serde(default = "default_mu_n")]
+    pub shaft_friction: f64,
+    /// Constant axial resistance r_0 of each sliding point [N].
+    #[serde(default)]
+    pub shaft_resistance: f64,
+    /// Spacing d_n between sliding points along the cut [mm].
+    #[serde(default = "default_dn")]
+    pub constraint_spacing: f64,
+}
+
+impl Default for InteractionSpec {
+    fn default() -> Self {
+        Self {
+            puncture_force: default_pf(),
+            surface_friction: default_mu_s(),
+            shaft_friction: default_mu_n(),
+            shaft_resistance: 0.0,
+            constraint_spacing: default_dn(),
+        }
+    }
+}
+
+/// Tuning of the inverse controller (paper §IV).
+#[derive(Clone, Copy, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct InverseSpec {
+    /// Joint perturbation δq for the numerical Jacobian [rad].
+    #[serde(default = "default_dq")]
+    pub delta_q: f64,
+    /// Blend distance d: θ1 in the air, θ2 beyond this insertion depth, linear in between [mm].
+    #[serde(default = "default_blend")]
+    pub blend_distance: f64,
+    /// Damping ε of the pseudo-inverse `Jᵀ(JJᵀ + ε²I)⁻¹` [mm].
+    #[serde(default = "default_damping")]
+    pub damping: f64,
+    /// Weight of the angular objective against the position error [mm/rad].
+    #[serde(default = "default_angle_weight")]
+    pub angle_weight: f64,
+    /// Objective tolerance: no Newton step while |T|² ≤ this [mm²].
+    #[serde(default = "default_inverse_tol")]
+    pub tolerance: f64,
+}
+
+impl Default for InverseSpec {
+    fn default() -> Self {
+        Self {
+            delta_q: default_dq(),
+            blend_distance: default_blend(),
+            damping: default_damping(),
+            angle_weight: default_angle_weight(),
+            tolerance: default_inverse_tol(),
+        }
+    }
+}
+
+/// Numerical settings of the host's FE solve and the core's Gauss-Seidel.
+#[derive(Clone, Copy, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct SolverSpec {
+    /// Gauss-Seidel tolerance on the largest change of λ between sweeps, relative [-].
+    #[serde(default = "default_gs_tol")]
+    pub gs_tolerance: f64,
+    /// Gauss-Seidel iteration cap.
+    #[serde(default = "default_gs_iter")]
+    pub gs_max_iterations: u32,
+    /// Time step h of the quasi-static implicit step (mass term M/h²) [s].
+    #[serde(default = "default_h")]
+    pub time_step: f64,
+    /// Refactorise the gel's stiffness every this many steps (1 = every step).
+    #[serde(default = "default_refactor")]
+    pub refactor_every: u32,
+}
+
+impl Default for SolverSpec {
+    fn default() -> Self {
+        Self {
+            gs_tolerance: default_gs_tol(),
+            gs_max_iterations: default_gs_iter(),
+            time_step: default_h(),
+            refactor_every: default_refactor(),
+        }
+    }
+}
+
+/// Parametric coordinates of a path given by formulas of `s ∈ [0, 1]`.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct FormulaSpec {
+    /// x(s) [mm], e.g. `"300 + 8*s^2"`.
+    pub x: String,
+    /// y(s) [mm].
+    pub y: String,
+    /// z(s) [mm].
+    pub z: String,
+}
+
+/// The planned path inside the gel, in the rest configuration, from the entry point on.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct PathSpec {
+    /// Polyline points [mm] (exclusive with `formula`); the first is the entry point.
+    #[serde(default)]
+    pub points: Option<Vec<[f64; 3]>>,
+    /// Formulas of `s` (exclusive with `points`); `s = 0` is the entry point.
+    #[serde(default)]
+    pub formula: Option<FormulaSpec>,
+    /// Number of samples of the formula (segments = samples − 1).
+    #[serde(default = "default_samples")]
+    pub samples: usize,
+    /// Length of the straight approach in the air before the entry point, along the entry tangent [mm].
+    #[serde(default = "default_approach")]
+    pub approach: f64,
+}
+
+/// A spherical obstacle, embedded in the gel at its rest position.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct ObstacleSpec {
+    /// Label used in reports.
+    #[serde(default)]
+    pub name: String,
+    /// Centre in the rest configuration [mm].
+    pub center: [f64; 3],
+    /// Radius [mm].
+    pub radius: f64,
+}
+
+/// How the target moves along the path.
+#[derive(Clone, Copy, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct InsertionSpec {
+    /// Advance of the target parameter c per step, as path length [mm].
+    #[serde(default = "default_advance")]
+    pub advance_per_step: f64,
+    /// Number of steps; default: until the target reaches the end of the path.
+    #[serde(default)]
+    pub steps: Option<usize>,
+}
+
+impl Default for InsertionSpec {
+    fn default() -> Self {
+        Self {
+            advance_per_step: default_advance(),
+            steps: None,
+        }
+    }
+}
+
+/// Outputs of a run.
+#[derive(Clone, Copy, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct OutputSpec {
+    /// Write VTK files every this many steps (0: never).
+    #[serde(default = "default_vtk_every")]
+    pub vtk_every: usize,
+}
+
+impl Default for OutputSpec {
+    fn default() -> Self {
+        Self {
+            vtk_every: default_vtk_every(),
+        }
+    }
+}
+
+fn default_preset() -> String {
+    "rv1a".to_owned()
+}
+fn default_dt() -> f64 {
+    0.04
+}
+fn default_gel_e() -> f64 {
+    0.02
+}
+fn default_gel_nu() -> f64 {
+    0.45
+}
+fn default_gel_rho() -> f64 {
+    1.0e-9
+}
+fn default_fixed() -> FixedSpec {
+    FixedSpec {
+        below_z: Some(0.0),
+        nodes: Vec::new(),
+    }
+}
+fn default_needle_length() -> f64 {
+    120.0
+}
+fn default_needle_diameter() -> f64 {
+    1.0
+}
+fn default_needle_e() -> f64 {
+    200_000.0
+}
+fn default_needle_nu() -> f64 {
+    0.3
+}
+fn default_needle_rho() -> f64 {
+    7.85e-9
+}
+fn default_needle_beams() -> usize {
+    40
+}
+fn default_pf() -> f64 {
+    0.2
+}
+fn default_mu_s() -> f64 {
+    0.3
+}
+fn default_mu_n() -> f64 {
+    0.1
+}
+fn default_dn() -> f64 {
+    10.0
+}
+fn default_dq() -> f64 {
+    0.01
+}
+fn default_blend() -> f64 {
+    20.0
+}
+fn default_damping() -> f64 {
+    0.05
+}
+fn default_angle_weight() -> f64 {
+    10.0
+}
+fn default_inverse_tol() -> f64 {
+    1.0e-8
+}
+fn default_gs_tol() -> f64 {
+    1.0e-9
+}
+fn default_gs_iter() -> u32 {
+    200
+}
+fn default_h() -> f64 {
+    0.04
+}
+fn default_refactor() -> u32 {
+    1
+}
+fn default_samples() -> usize {
+    201
+}
+fn default_approach() -> f64 {
+    10.0
+}
+fn default_advance() -> f64 {
+    0.1
+}
+fn default_vtk_every() -> usize {
+    0
+}
+
+/// What went wrong loading a scene: the file, the field and the reason.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SceneError {
+    /// The scene file (or `<builtin:NAME>`).
+    pub file: String,
+    /// Dotted path of the offending field, e.g. `gel.young_modulus` (empty for a syntax error).
+    pub field: String,
+    /// Why it was rejected.
+    pub reason: String,
+}
+
+impl fmt::Display for SceneError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        if self.field.is_empty() {
+            write!(f, "{}: {}", self.file, self.reason)
+        } else {
+            write!(f, "{}: field `{}`: {}", self.file, self.field, self.reason)
+        }
+    }
+}
+
+impl std::error::Error for SceneError {}
+
+impl Scene {
+    /// Parses and validates a scene from TOML text; `file` names it in errors.
+    ///
+    /// # Errors
+    /// [`SceneError`] naming the file, the field and the reason for a syntax error, an unknown or
+    /// missing field, a value of the wrong type, or a value that makes no physical sense.
+    pub fn from_toml_str(text: &str, file: &str) -> Result<Self, SceneError> {
+        let de = toml::Deserializer::parse(text).map_err(|e| SceneError {
+            file: file.to_owned(),
+            field: String::new(),
+            reason: one_line(&e.to_string()),
+        })?;
+        let mut scene: Scene = serde_path_to_error::deserialize(de).map_err(|e| {
+            let field = e.path().to_string();
+            SceneError {
+                file: file.to_owned(),
+                field: if field == "." { String::new() } else { field },
+                reason: one_line(&e.into_inner().to_string()),
+            }
+        })?;
+        if scene.gel.box_mesh.is_none() && scene.gel.mesh.is_none() {
+            scene.gel.box_mesh = GelSpec::default().box_mesh;
+        }
+        scene.validate().map_err(|(field, reason)| SceneError {
+            file: file.to_owned(),
+            field,
+            reason,
+        })?;
+        Ok(scene)
+    }
+
+    /// Reads, parses and validates a scene file. Relative mesh paths are resolved against its folder.
+    ///
+    /// # Errors
+    /// [`SceneError`] for an unreadable file or any error of [`Scene::from_toml_str`].
+    pub fn load(path: &Path) -> Result<Self, SceneError> {
+        let file = path.display().to_string();
+        let text = std::fs::read_to_string(path).map_err(|e| SceneError {
+            file: file.clone(),
+            field: String::new(),
+            reason: format!("cannot read: {e}"),
+        })?;
+        let mut scene = Self::from_toml_str(&text, &file)?;
+        if let (Some(mesh), Some(dir)) = (scene.gel.mesh.as_mut(), path.parent())
+            && mesh.is_relative()
+        {
+            *mesh = dir.join(&*mesh);
+        }
+        Ok(scene)
+    }
+
+    /// One of the embedded benchmark scenes: `"simple"` or `"complex"`.
+    pub fn builtin(name: &str) -> Option<Self> {
+        let text = match name {
+            "simple" => SIMPLE_TOML,
+            "complex" => COMPLEX_TOML,
+            _ => return None,
+        };
+        Self::from_toml_str(text, &format!("<builtin:{name}>")).ok()
+    }
+
+    /// Names of the embedded scenes.
+    pub const BUILTIN: [&'static str; 2] = ["simple", "complex"];
+
+    /// Samples the path into a polyline with arc length (rest configuration).
+    ///
+    /// # Errors
+    /// [`PathError`] when a formula does not parse or evaluates to a non-finite value.
+    pub fn sampled_path(&self) -> Result<SampledPath, PathError> {
+        SampledPath::from_spec(&self.path)
+    }
+}
+
+fn one_line(s: &str) -> String {
+    s.split_whitespace().collect::<Vec<_>>().join(" ")
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,206 @@
+//! The planned path as a polyline parametrised by arc length (rest configuration).
+
+use super::PathSpec;
+use exmex::Express;
+use nalgebra::Vector3;
+use std::fmt;
+
+/// Why a path could not be built.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PathError {
+    /// Dotted field path, e.g. `path.formula.x`.
+    pub field: String,
+    /// Why.
+    pub reason: String,
+}
+
+impl fmt::Display for PathError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "field `{}`: {}", self.field, self.reason)
+    }
+}
+
+impl std::error::Error for PathError {}
+
+/// A polyline with cumulative arc length: the path in the gel, from the entry point on.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SampledPath {
+    /// Vertices in the rest configuration [mm]; the first is the entry point.
+    pub points: Vec<Vector3<f64>>,
+    /// Arc length from the entry point to each vertex [mm].
+    pub arc: Vec<f64>,
+    /// Length of the straight approach in the air before the entry point [mm].
+    pub approach: f64,
+    /// Unit tangent at the entry point: second-order one-sided difference for a sampled formula
+    /// (exact for quadratics), the first chord for a polyline.
+    pub entry_tangent: Vector3<f64>,
+}
+
+fn eval_formula(field: &str, text: &str, samples: usize) -> Result<Vec<f64>, PathError> {
+    let err = |reason: String| PathError {
+        field: field.to_owned(),
+        reason,
+    };
+    let expr = exmex::parse::<f64>(text).map_err(|e| err(format!("cannot parse `{text}`: {e}")))?;
+    let vars = expr.var_names().to_vec();
+    if vars.iter().any(|v| v != "s") {
+        return Err(err(format!(
+            "`{text}` uses variables {vars:?}; only `s` (0 at the entry, 1 at the end) is defined"
+        )));
+    }
+    (0..samples)
+        .map(|i| {
+            let s = i as f64 / (samples - 1) as f64;
+            let v = if vars.is_empty() {
+                expr.eval(&[])
+            } else {
+                expr.eval(&[s])
+            }
+            .map_err(|e| err(format!("cannot evaluate `{text}` at s = {s}: {e}")))?;
+            if v.is_finite() {
+                Ok(v)
+            } else {
+                Err(err(format!("`{text}` is not finite at s = {s}")))
+            }
+        })
+        .collect()
+}
+
+impl SampledPath {
+    /// Builds the polyline from the scene's points or formulas.
+    ///
+    /// # Errors
+    /// [`PathError`] when neither or both of `points` and `formula` are given, a formula does not
+    /// parse, uses a variable other than `s`, is not finite, or the path has fewer than two distinct points.
+    pub fn from_spec(spec: &PathSpec) -> Result<Self, PathError> {
+        let from_formula = spec.formula.is_some();
+        let points: Vec<Vector3<f64>> = match (&spec.points, &spec.formula) {
+            (Some(_), Some(_)) => {
+                return Err(PathError {
+                    field: "path".into(),
+                    reason: "give either `points` or `formula`, not both".into(),
+                });
+            }
+            (None, None) => {
+                return Err(PathError {
+                    field: "path".into(),
+                    reason: "give `points` or `formula`".into(),
+                });
+            }
+            (Some(p), None) => p.iter().map(|p| Vector3::from(*p)).collect(),
+            (None, Some(f)) => {
+                if spec.samples < 2 {
+                    return Err(PathError {
+                        field: "path.samples".into(),
+                        reason: "must be at least 2".into(),
+                    });
+                }
+                let x = eval_formula("path.formula.x", &f.x, spec.samples)?;
+                let y = eval_formula("path.formula.y", &f.y, spec.samples)?;
+                let z = eval_formula("path.formula.z", &f.z, spec.samples)?;
+                (0..spec.samples)
+                    .map(|i| Vector3::new(x[i], y[i], z[i]))
+                    .collect()
+            }
+        };
+        if let Some(i) = points.iter().position(|p| !p.iter().all(|c| c.is_finite())) {
+            return Err(PathError {
+                field: format!("path.points[{i}]"),
+                reason: "not finite".into(),
+            });
+        }
+        let mut arc = Vec::with_capacity(points.len());
+        let mut acc = 0.0;
+        for (i, p) in points.iter().enumerate() {
+            if i > 0 {
+                let l = (p - points[i - 1]).norm();
+                if l <= 1e-9 {
+                    return Err(PathError {
+                        field: format!("path.points[{i}]"),
+                        reason: "repeats the previous point (zero-length segment)".into(),
+                    });
+                }
+                acc += l;
+            }
+            arc.push(acc);
+        }
+        if points.len() < 2 {
+            return Err(PathError {
+                field: "path.points".into(),
+                reason: "needs at least two points".into(),
+            });
+        }
+        if !(spec.approach.is_finite() && spec.approach >= 0.0) {
+            return Err(PathError {
+                field: "path.approach".into(),
+                reason: "must be finite and ≥ 0 [mm]".into(),
+            });
+        }
+        let entry_tangent = if from_formula && points.len() >= 3 {
+            (4.0 * points[1] - 3.0 * points[0] - points[2]).normalize()
+        } else {
+            (points[1] - points[0]).normalize()
+        };
+        if !entry_tangent.iter().all(|c| c.is_finite()) {
+            return Err(PathError {
+                field: "path".into(),
+                reason: "the entry tangent is undefined".into(),
+            });
+        }
+        Ok(Self {
+            points,
+            arc,
+            approach: spec.approach,
+            entry_tangent,
+        })
+    }
+
+    /// Length of the path inside the gel, from the entry point [mm].
+    pub fn length(&self) -> f64 {
+        self.arc.last().copied().unwrap_or(0.0)
+    }
+
+    /// The entry point (first vertex) [mm].
+    pub fn entry(&self) -> Vector3<f64> {
+        self.points[0]
+    }
+
+    /// Unit tangent at the entry point.
+    pub fn entry_tangent(&self) -> Vector3<f64> {
+        self.entry_tangent
+    }
+
+    /// The needle tip's start: `approach` before the entry point along the entry tangent [mm].
+    pub fn start_tip(&self) -> Vector3<f64> {
+        self.entry() - self.approach * self.entry_tangent()
+    }
+
+    /// Total length from the start tip through the approach to the path's end [mm].
+    pub fn total_length(&self) -> f64 {
+        self.approach + self.length()
+    }
+
+    /// Index of the segment holding arc length `l` (clamped to the path) and the local fraction.
+    pub fn locate(&self, l: f64) -> (usize, f64) {
+        let l = l.clamp(0.0, self.length());
+        let seg = match self.arc.binary_search_by(|a| a.total_cmp(&l)) {
+            Ok(i) => i.min(self.points.len() - 2),
+            Err(i) => i.saturating_sub(1).min(self.points.len() - 2),
+        };
+        let len = self.arc[seg + 1] - self.arc[seg];
+        (seg, ((l - self.arc[seg]) / len).clamp(0.0, 1.0))
+    }
+
+    /// Point and unit tangent at arc length `l` from the start tip (the approach counts, so
+    /// `l < approach` lies in the air on the straight approach segment) [mm].
+    pub fn at(&self, l: f64) -> (Vector3<f64>, Vector3<f64>) {
+        if l < self.approach {
+            let t = self.entry_tangent();
+            return (self.start_tip() + l.max(0.0) * t, t);
+        }
+        let (seg, f) = self.locate(l - self.approach);
+        let a = self.points[seg];
+        let b = self.points[seg + 1];
+        (a + f * (b - a), (b - a).normalize())
+    }
+}

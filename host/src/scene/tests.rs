@@ -1,0 +1,179 @@
+use super::*;
+use nalgebra::Vector3;
+
+fn err_of(text: &str) -> SceneError {
+    match Scene::from_toml_str(text, "bad.toml") {
+        Ok(_) => panic!("scene was accepted:\n{text}"),
+        Err(e) => e,
+    }
+}
+
+const MINIMAL: &str = r#"
+name = "minimal"
+[path]
+points = [[300.0, 0.0, 60.0], [300.0, 0.0, 10.0]]
+"#;
+
+#[test]
+fn builtin_scenes_parse_and_encode_the_benchmark() {
+    for name in Scene::BUILTIN {
+        let s = Scene::builtin(name).unwrap_or_else(|| panic!("builtin {name} failed"));
+        assert_eq!(s.name, name);
+        let p = s.sampled_path().expect("path");
+        assert!((p.entry() - Vector3::new(300.0, 0.0, 60.0)).norm() < 1e-12);
+        assert!((p.points.last().unwrap().z - 10.0).abs() < 1e-12);
+        assert_eq!(s.gel.box_mesh.unwrap().nodes, 1500);
+        assert_eq!(s.interaction.constraint_spacing, 10.0);
+    }
+    let simple = Scene::builtin("simple").unwrap();
+    let p = simple.sampled_path().unwrap();
+    assert!((p.start_tip() - Vector3::new(300.0, 0.0, 70.0)).norm() < 1e-12);
+    assert!((p.points.last().unwrap().x - 308.0).abs() < 1e-12);
+    assert_eq!(simple.obstacles.len(), 1);
+
+    // Complex: entry tangent tilted atan(3·2π/50) = 20.65° from vertical (BENCHMARK.md: 20.7°).
+    let complex = Scene::builtin("complex").unwrap();
+    let p = complex.sampled_path().unwrap();
+    let tilt = p
+        .entry_tangent()
+        .dot(&Vector3::new(0.0, 0.0, -1.0))
+        .acos()
+        .to_degrees();
+    assert!((tilt - 20.65).abs() < 0.05, "tilt {tilt}");
+    assert_eq!(complex.obstacles.len(), 3);
+    // The obstacles sit beside the path at s = 0.25, 0.5, 0.75.
+    let (mid, _) = p.at(p.approach + p.length() * 0.5);
+    assert!(
+        (mid - Vector3::new(300.0, 1.25, 35.0)).norm() < 0.5,
+        "{mid}"
+    );
+}
+
+#[test]
+fn shipped_files_equal_the_embedded_scenes() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes");
+    for name in Scene::BUILTIN {
+        let file = Scene::load(&dir.join(format!("{name}.toml"))).expect("load");
+        assert_eq!(Some(file), Scene::builtin(name));
+    }
+}
+
+#[test]
+fn minimal_scene_takes_documented_defaults() {
+    let s = Scene::from_toml_str(MINIMAL, "min.toml").expect("minimal");
+    assert_eq!(s.gel.young_modulus, 0.02);
+    assert_eq!(s.needle.beams, 40);
+    assert_eq!(s.interaction.puncture_force, 0.2);
+    assert_eq!(s.inverse.delta_q, 0.01);
+    assert_eq!(s.path.approach, 10.0);
+    assert_eq!(s.robot.preset, "rv1a");
+}
+
+#[test]
+fn path_is_parametrised_by_arc_length_through_the_approach() {
+    let s = Scene::from_toml_str(MINIMAL, "min.toml").unwrap();
+    let p = s.sampled_path().unwrap();
+    assert_eq!(p.total_length(), 60.0);
+    let (a, t) = p.at(0.0);
+    assert!((a - Vector3::new(300.0, 0.0, 70.0)).norm() < 1e-12);
+    assert!((t - Vector3::new(0.0, 0.0, -1.0)).norm() < 1e-12);
+    let (b, _) = p.at(35.0);
+    assert!((b - Vector3::new(300.0, 0.0, 35.0)).norm() < 1e-12);
+    let (c, _) = p.at(1e9);
+    assert!((c - Vector3::new(300.0, 0.0, 10.0)).norm() < 1e-12);
+}
+
+#[test]
+fn malformed_scenes_name_file_field_and_reason() {
+    let cases: &[(&str, &str, &str)] = &[
+        ("[gel]\nyoung_modulus = -1.0\n", "gel.young_modulus", "> 0"),
+        (
+            "[gel]\npoisson_ratio = 0.5\n",
+            "gel.poisson_ratio",
+            "(-1, 0.5)",
+        ),
+        (
+            "[gel]\nyoung_modulus = \"soft\"\n",
+            "gel.young_modulus",
+            "invalid type",
+        ),
+        (
+            "[gel]\nyoungs_modulus = 1.0\n",
+            "gel.youngs_modulus",
+            "unknown field",
+        ),
+        ("[needle]\nbeams = 0\n", "needle.beams", "between"),
+        (
+            "[interaction]\nconstraint_spacing = 0.0\n",
+            "interaction.constraint_spacing",
+            "> 0",
+        ),
+        (
+            "[robot]\npreset = \"ur5\"\n",
+            "robot.preset",
+            "unknown robot",
+        ),
+        (
+            "[robot]\njoint_min_deg = [0, 0, 0]\n",
+            "robot.joint_min_deg",
+            "6 values",
+        ),
+        ("[inverse]\ndelta_q = 2.0\n", "inverse.delta_q", "0.5"),
+        (
+            "[[obstacles]]\ncenter = [0, 0, 0]\nradius = -2\n",
+            "obstacles[0].radius",
+            "> 0",
+        ),
+        (
+            "[gel.fixed]\nbelow_z = nan\n",
+            "gel.fixed.below_z",
+            "finite",
+        ),
+    ];
+    for (extra, field, reason) in cases {
+        let e = err_of(&format!("{MINIMAL}\n{extra}"));
+        assert_eq!(e.file, "bad.toml");
+        assert_eq!(&e.field, field, "{extra}: {e}");
+        assert!(
+            e.reason.contains(reason),
+            "{extra}: reason `{}` lacks `{reason}`",
+            e.reason
+        );
+        let shown = e.to_string();
+        assert!(shown.starts_with("bad.toml: field `"), "{shown}");
+    }
+}
+
+#[test]
+fn malformed_paths_are_rejected_with_their_field() {
+    let bad_formula =
+        "name = \"x\"\n[path]\nformula = { x = \"300 + q\", y = \"0\", z = \"60 - 50*s\" }\n";
+    assert_eq!(err_of(bad_formula).field, "path.formula.x");
+    let unparsable =
+        "name = \"x\"\n[path]\nformula = { x = \"300 +* (\", y = \"0\", z = \"60 - 50*s\" }\n";
+    assert_eq!(err_of(unparsable).field, "path.formula.x");
+    let infinite =
+        "name = \"x\"\n[path]\nformula = { x = \"300\", y = \"1/s\", z = \"60 - 50*s\" }\n";
+    assert_eq!(err_of(infinite).field, "path.formula.y");
+    let both = "name = \"x\"\n[path]\npoints = [[0,0,0],[0,0,1]]\nformula = { x = \"0\", y = \"0\", z = \"s\" }\n";
+    assert_eq!(err_of(both).field, "path");
+    let repeated = "name = \"x\"\n[path]\npoints = [[0,0,0],[0,0,0]]\n";
+    assert_eq!(err_of(repeated).field, "path.points[1]");
+    let missing = "name = \"x\"\n";
+    let e = err_of(missing);
+    assert!(e.reason.contains("missing field `path`"), "{e}");
+}
+
+#[test]
+fn syntax_errors_name_the_file() {
+    let e = err_of("name = \"x\"\n[path\n");
+    assert_eq!(e.file, "bad.toml");
+    assert!(e.field.is_empty());
+    assert!(e.reason.contains("line 2"), "{e}");
+}
+
+#[test]
+fn missing_file_is_an_error_not_a_panic() {
+    let e = Scene::load(std::path::Path::new("/nonexistent/scene.toml")).unwrap_err();
+    assert!(e.reason.contains("cannot read"), "{e}");
+}
