@@ -177,3 +177,13 @@ fn missing_file_is_an_error_not_a_panic() {
     let e = Scene::load(std::path::Path::new("/nonexistent/scene.toml")).unwrap_err();
     assert!(e.reason.contains("cannot read"), "{e}");
 }
+
+/// Every function `docs/scene-format.md` lists for formulas evaluates.
+#[test]
+fn formula_functions_documented_in_scene_format_work() {
+    let text = "name = \"f\"\n[path]\nsamples = 3\nformula = { x = \"sqrt(abs(-4)) + sin(0) + cos(0) + tan(0) + exp(0) + log(1) + 2^2\", y = \"PI*s\", z = \"60 - 50*s\" }\n";
+    let s = Scene::from_toml_str(text, "f.toml").expect("functions");
+    let p = s.sampled_path().unwrap();
+    assert!((p.points[0].x - 8.0).abs() < 1e-12, "{}", p.points[0].x);
+    assert!((p.points[2].y - std::f64::consts::PI).abs() < 1e-12);
+}
