@@ -88,13 +88,21 @@ impl TetLocator {
     /// Builds the BVH over the elements at the given node positions.
     pub fn new(nodes: &[Vector3<f64>], tets: &[[usize; 4]]) -> Self {
         let leaves: Vec<Aabb> = tets.iter().map(|t| tet_aabb(nodes, t)).collect();
-        Self { bvh: Bvh::from_leaves(BvhBuildStrategy::Binned, &leaves) }
+        Self {
+            bvh: Bvh::from_leaves(BvhBuildStrategy::Binned, &leaves),
+        }
     }
 
     /// The element holding `p`, with barycentric coordinates, or — when `p` lies outside the
     /// mesh (or in a gap of an inverted region) — the element whose coordinates are least
     /// negative among those whose box is within `reach` of `p` [mm]. `None` if nothing is near.
-    pub fn locate(&self, nodes: &[Vector3<f64>], tets: &[[usize; 4]], p: &Vector3<f64>, reach: f64) -> Option<Embedded> {
+    pub fn locate(
+        &self,
+        nodes: &[Vector3<f64>],
+        tets: &[[usize; 4]],
+        p: &Vector3<f64>,
+        reach: f64,
+    ) -> Option<Embedded> {
         let r = Vector3::repeat(reach.max(0.0));
         let query = Aabb::new(to_g(&(p - r)), to_g(&(p + r)));
         let mut best: Option<(f64, Embedded)> = None;
@@ -102,7 +110,9 @@ impl TetLocator {
             let tet = leaf as usize;
             let t = tets[tet];
             let x = [nodes[t[0]], nodes[t[1]], nodes[t[2]], nodes[t[3]]];
-            let Some(w) = barycentric_tet(&x, p) else { continue };
+            let Some(w) = barycentric_tet(&x, p) else {
+                continue;
+            };
             let worst = w.iter().copied().fold(f64::INFINITY, f64::min);
             if best.as_ref().is_none_or(|(b, _)| worst > *b) {
                 best = Some((worst, Embedded { tet, weights: w }));
@@ -146,7 +156,9 @@ impl SurfaceProjector {
                 Aabb::new(to_g(&mins), to_g(&maxs))
             })
             .collect();
-        Self { bvh: Bvh::from_leaves(BvhBuildStrategy::Binned, &leaves) }
+        Self {
+            bvh: Bvh::from_leaves(BvhBuildStrategy::Binned, &leaves),
+        }
     }
 
     /// The closest surface point to `p` within `max_distance` [mm].
@@ -167,7 +179,9 @@ impl SurfaceProjector {
         let t = triangles[triangle];
         let x = [nodes[t[0]], nodes[t[1]], nodes[t[2]]];
         let point = from_g(proj.point);
-        let normal = (x[1] - x[0]).cross(&(x[2] - x[0])).try_normalize(f64::MIN_POSITIVE)?;
+        let normal = (x[1] - x[0])
+            .cross(&(x[2] - x[0]))
+            .try_normalize(f64::MIN_POSITIVE)?;
         Some(SurfaceHit {
             triangle,
             weights: barycentric_triangle(&x, &point),
@@ -184,7 +198,13 @@ mod tests {
 
     fn unit_tet() -> (Vec<Vector3<f64>>, Vec<[usize; 4]>) {
         (
-            vec![Vector3::zeros(), Vector3::x(), Vector3::y(), Vector3::z(), Vector3::new(1.0, 1.0, 1.0)],
+            vec![
+                Vector3::zeros(),
+                Vector3::x(),
+                Vector3::y(),
+                Vector3::z(),
+                Vector3::new(1.0, 1.0, 1.0),
+            ],
             vec![[0, 1, 2, 3], [1, 2, 3, 4]],
         )
     }
@@ -203,16 +223,26 @@ mod tests {
         let e = loc.locate(&n, &t, &p, 0.2).expect("near");
         assert_eq!(e.tet, 0);
         assert!((e.position(&n, &t) - p).norm() < 1e-12);
-        assert!(loc.locate(&n, &t, &Vector3::new(5.0, 5.0, 5.0), 0.1).is_none());
+        assert!(
+            loc.locate(&n, &t, &Vector3::new(5.0, 5.0, 5.0), 0.1)
+                .is_none()
+        );
     }
 
     #[test]
     fn surface_projection_finds_the_closest_face_and_signed_distance() {
         // The square z = 0 of two triangles, normal +z.
-        let n = vec![Vector3::zeros(), Vector3::x(), Vector3::new(1.0, 1.0, 0.0), Vector3::y()];
+        let n = vec![
+            Vector3::zeros(),
+            Vector3::x(),
+            Vector3::new(1.0, 1.0, 0.0),
+            Vector3::y(),
+        ];
         let tris = vec![[0, 1, 2], [0, 2, 3]];
         let s = SurfaceProjector::new(&n, &tris);
-        let hit = s.project(&n, &tris, &Vector3::new(0.25, 0.75, 0.4), 10.0).expect("hit");
+        let hit = s
+            .project(&n, &tris, &Vector3::new(0.25, 0.75, 0.4), 10.0)
+            .expect("hit");
         assert_eq!(hit.triangle, 1);
         assert!((hit.point - Vector3::new(0.25, 0.75, 0.0)).norm() < 1e-12);
         assert!((hit.signed_distance - 0.4).abs() < 1e-12);
@@ -220,8 +250,13 @@ mod tests {
         let w = hit.weights;
         let back = w[0] * n[0] + w[1] * n[2] + w[2] * n[3];
         assert!((back - hit.point).norm() < 1e-12);
-        let below = s.project(&n, &tris, &Vector3::new(0.75, 0.25, -0.1), 10.0).expect("hit");
+        let below = s
+            .project(&n, &tris, &Vector3::new(0.75, 0.25, -0.1), 10.0)
+            .expect("hit");
         assert!((below.signed_distance + 0.1).abs() < 1e-12);
-        assert!(s.project(&n, &tris, &Vector3::new(0.5, 0.5, 30.0), 1.0).is_none());
+        assert!(
+            s.project(&n, &tris, &Vector3::new(0.5, 0.5, 30.0), 1.0)
+                .is_none()
+        );
     }
 }
