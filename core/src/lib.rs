@@ -1,2 +1,23 @@
-//! `needle-core`: the fixed-capacity, allocation-free step core.
+#![doc = include_str!("../README.md")]
 #![cfg_attr(not(test), no_std)]
+#![deny(missing_docs, clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+// `!(x > 0.0)` is deliberate throughout: it is true for NaN, which must take the safe branch.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+// Index loops over several parallel fixed arrays read better than zipped iterators here.
+#![allow(clippy::needless_range_loop)]
+
+pub mod constraint;
+pub mod ik;
+pub mod inverse;
+pub mod kinematics;
+mod math;
+pub mod payload;
+
+pub use constraint::{BlockGs, GsParams, SolveReport};
+pub use ik::{IkError, IkParams, IkReport, solve_ik};
+pub use inverse::{Controller, InverseParams, Objective, StepError};
+pub use kinematics::{DhChain, DhJoint, JointLimit, Pose};
+pub use payload::{
+    Command, ComplianceFrame, GroupKind, NOBS, ObsIndex, RowGroup, SolverReport, StatusFlags,
+    VERSION, ValidationError,
+};

@@ -1,0 +1,561 @@
+//! Constraint solve: projected **block** Gauss-Seidel on `w = W λ − δ` (paper §III-D, step 4).
+//!
+//! Rows come in groups (see [`GroupKind`]); each sweep visits the groups in order and solves each
+//! group's local problem exactly with the other groups' forces fixed:
+//!
+//! * bilateral (1…6 rows, e.g. the 6 needle-base rows): `λ_g ← λ_g − W_gg⁻¹ w_g` (`w_g = 0`);
+//! * unilateral row: `λ ← max(0, λ − w / W_ii)`;
+//! * contact `[n, t1, t2]` with Coulomb friction: the normal row as a unilateral row, then the
+//!   tangential pair as the disk-constrained problem `min ½ xᵀ W_tt x + gᵀ x, |x| ≤ μ λ_n` solved
+//!   exactly (a 2-D trust-region problem, secular equation by Newton). Its optimality conditions
+//!   are the sliding law (`w_t` opposite to `λ_t` on the disk edge), so fixed points of the sweep
+//!   are Coulomb solutions — a Euclidean projection after a `W_tt⁻¹` step would not be;
+//! * sliding point `[l1, l2, axial]`: the lateral pair as a bilateral 2×2 block, then the axial
+//!   row clamped to `|λ_a| ≤ μ_n |λ_l| + r_0`.
+//!
+//! The block inverses are computed once per frame by [`BlockGs::prepare`] and reused by every
+//! solve of the step. `w` is kept up to date with row updates (`W` symmetric: column = row, a
+//! contiguous `axpy`), so one sweep costs `m²` multiply-adds.
+//!
+//! The stopping test is the largest `|W_ii Δλ_i|` of a sweep relative to the problem scale
+//! (`‖δ‖∞`); running out of iterations is reported, not an error. Optionally, when the problem has
+//! no friction rows, a **polish** solves the equality system of the active set found by GS
+//! (bilateral rows and unilateral rows with `λ > 0`) by conjugate gradients and updates the active
+//! set primal-dual style until the LCP conditions hold to round-off; the polish result is kept
+//! only if it is feasible, otherwise the GS iterate is returned.
+
+use crate::math::{axpy, dot, max_abs, spd_inverse_in_place};
+use crate::payload::{
+    ComplianceFrame, GroupKind, RowGroup, ValidationError, validate_compliance, validate_groups,
+};
+
+/// Tuning of one constraint solve.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GsParams {
+    /// Stop when the largest `|W_ii Δλ_i|` of a sweep is below `tolerance · ‖δ‖∞` [-].
+    pub tolerance: f64,
+    /// Largest number of sweeps.
+    pub max_iterations: u32,
+    /// Polish frictionless problems on the active set (see the module docs).
+    pub polish: bool,
+}
+
+impl Default for GsParams {
+    fn default() -> Self {
+        Self {
+            tolerance: 1e-10,
+            max_iterations: 400,
+            polish: false,
+        }
+    }
+}
+
+/// Outcome of one constraint solve.
+#[derive(Clone, Copy, Debug, PartialEq, Default)]
+pub struct SolveReport {
+    /// Sweeps performed.
+    pub iterations: u32,
+    /// Largest `|W_ii Δλ_i|` of the last sweep over the problem scale [-] (0 after a polish).
+    pub residual: f64,
+    /// Whether the tolerance was reached (or the polish succeeded).
+    pub converged: bool,
+    /// Whether the result comes from the active-set polish.
+    pub polished: bool,
+}
+
+const KIND_BILATERAL: u8 = 1;
+const KIND_UNILATERAL: u8 = 2;
+const KIND_CONTACT: u8 = 3;
+const KIND_SLIDING: u8 = 4;
+
+#[derive(Clone, Copy, Debug, Default)]
+struct Block {
+    kind: u8,
+    len: u8,
+    start: u32,
+    mu: f64,
+    r0: f64,
+}
+
+/// Projected block Gauss-Seidel solver with capacity `M` rows; owns the per-frame block factors
+/// and the solve scratch (no allocation).
+#[derive(Clone, Debug)]
+pub struct BlockGs<const M: usize> {
+    m: usize,
+    n_blocks: usize,
+    frictional: bool,
+    blocks: [Block; M],
+    /// Per block, at row `start`: packed factors (≤ 6 values per row of the block).
+    factors: [[f64; 6]; M],
+    diag: [f64; M],
+    w: [f64; M],
+    scratch: [[f64; M]; 4],
+    active: [u8; M],
+}
+
+impl<const M: usize> Default for BlockGs<M> {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl<const M: usize> BlockGs<M> {
+    /// An empty solver (no frame prepared: solves return at once).
+    pub const fn new() -> Self {
+        Self {
+            m: 0,
+            n_blocks: 0,
+            frictional: false,
+            blocks: [Block {
+                kind: 0,
+                len: 0,
+                start: 0,
+                mu: 0.0,
+                r0: 0.0,
+            }; M],
+            factors: [[0.0; 6]; M],
+            diag: [0.0; M],
+            w: [0.0; M],
+            scratch: [[0.0; M]; 4],
+            active: [0; M],
+        }
+    }
+
+    /// Rows of the prepared problem.
+    pub fn rows(&self) -> usize {
+        self.m
+    }
+
+    /// Validates a frame ([`ComplianceFrame::validate`]) and prepares its block factors.
+    ///
+    /// # Errors
+    /// The frame's validation error.
+    pub fn prepare_frame(&mut self, frame: &ComplianceFrame<M>) -> Result<(), ValidationError> {
+        frame.validate()?;
+        self.prepare_unchecked(&frame.w, frame.rows(), frame.used_groups());
+        Ok(())
+    }
+
+    /// Validates a group table and the used block of `w`, then factors every diagonal block.
+    /// Unlike a frame, the table need not start with the 6 base rows.
+    ///
+    /// # Errors
+    /// A [`ValidationError`] for an inconsistent table or a bad `w`.
+    pub fn prepare(
+        &mut self,
+        w: &[[f64; M]; M],
+        m: usize,
+        groups: &[RowGroup],
+    ) -> Result<(), ValidationError> {
+        self.m = 0;
+        self.n_blocks = 0;
+        validate_groups(groups, m, M, false)?;
+        validate_compliance(w, m)?;
+        self.prepare_unchecked(w, m, groups);
+        Ok(())
+    }
+
+    fn prepare_unchecked(&mut self, w: &[[f64; M]; M], m: usize, groups: &[RowGroup]) {
+        self.m = m.min(M);
+        self.n_blocks = groups.len().min(M);
+        self.frictional = false;
+        for i in 0..self.m {
+            self.diag[i] = w[i][i];
+        }
+        for (b, g) in self.blocks.iter_mut().zip(groups) {
+            *b = Block {
+                kind: g.kind as u8,
+                len: g.len as u8,
+                start: g.start,
+                mu: g.mu,
+                r0: g.r0,
+            };
+            let s = g.start as usize;
+            let f = self.factors[s..].as_flattened_mut();
+            match GroupKind::from_raw(g.kind) {
+                Some(GroupKind::Bilateral) => {
+                    let n = g.len as usize;
+                    for i in 0..n {
+                        for j in 0..n {
+                            f[i * n + j] = w[s + i][s + j];
+                        }
+                    }
+                    spd_inverse_in_place(&mut f[..n * n], n);
+                }
+                Some(GroupKind::Unilateral) => f[0] = 1.0 / w[s][s],
+                Some(GroupKind::Contact) => {
+                    self.frictional = true;
+                    f[0] = 1.0 / w[s][s];
+                    let (a, bb, c) = (w[s + 1][s + 1], w[s + 1][s + 2], w[s + 2][s + 2]);
+                    let e = Sym2::new(a, bb, c);
+                    f[1..11].copy_from_slice(&e.pack());
+                }
+                Some(GroupKind::Sliding) => {
+                    let e = Sym2::new(w[s][s], w[s][s + 1], w[s + 1][s + 1]);
+                    f[0..10].copy_from_slice(&e.pack());
+                    f[10] = 1.0 / w[s + 2][s + 2];
+                }
+                None => {}
+            }
+        }
+    }
+
+    /// Solves `w = W λ − δ` under the group laws, warm-starting from `lambda`, which receives the
+    /// result. `w` must be the matrix given to the last `prepare`; rows `m..` are left untouched.
+    /// Never loops unbounded; finite input gives finite output.
+    pub fn solve(
+        &mut self,
+        w: &[[f64; M]; M],
+        delta: &[f64; M],
+        lambda: &mut [f64; M],
+        params: &GsParams,
+    ) -> SolveReport {
+        let m = self.m;
+        if m == 0 {
+            return SolveReport {
+                converged: true,
+                ..SolveReport::default()
+            };
+        }
+        // Initial residual and the problem scale.
+        let mut scale = max_abs(&delta[..m]);
+        for i in 0..m {
+            if !lambda[i].is_finite() {
+                lambda[i] = 0.0;
+            }
+            self.w[i] = dot(&w[i][..m], &lambda[..m]) - delta[i];
+            scale = scale.max(libm::fabs(self.diag[i] * lambda[i]));
+        }
+        if !(scale > 0.0) {
+            lambda[..m].fill(0.0);
+            return SolveReport {
+                converged: true,
+                ..SolveReport::default()
+            };
+        }
+        let tol = if params.tolerance.is_finite() {
+            params.tolerance.max(0.0)
+        } else {
+            0.0
+        };
+        let mut report = SolveReport::default();
+        while report.iterations < params.max_iterations {
+            let change = self.sweep(w, lambda);
+            report.iterations += 1;
+            report.residual = change / scale;
+            if !(report.residual > tol) {
+                report.converged = report.residual <= tol;
+                break;
+            }
+        }
+        if params.polish && !self.frictional && self.polish(w, delta, lambda, scale) {
+            report.converged = true;
+            report.polished = true;
+            report.residual = 0.0;
+        }
+        report
+    }
+
+    /// One sweep over every group; returns the largest `|W_ii Δλ_i|`.
+    fn sweep(&mut self, w: &[[f64; M]; M], lambda: &mut [f64; M]) -> f64 {
+        let m = self.m;
+        let mut change = 0.0f64;
+        for bi in 0..self.n_blocks {
+            let b = self.blocks[bi];
+            let s = b.start as usize;
+            let f = self.factors[s..].as_flattened();
+            match b.kind {
+                KIND_BILATERAL => {
+                    let n = b.len as usize;
+                    let mut d = [0.0f64; 6];
+                    for i in 0..n {
+                        let mut acc = 0.0;
+                        for j in 0..n {
+                            acc += f[i * n + j] * self.w[s + j];
+                        }
+                        d[i] = -acc;
+                    }
+                    for i in 0..n {
+                        lambda[s + i] += d[i];
+                        axpy(d[i], &w[s + i][..m], &mut self.w[..m]);
+                        change = change.max(libm::fabs(d[i] * self.diag[s + i]));
+                    }
+                }
+                KIND_UNILATERAL => {
+                    let new = (lambda[s] - self.w[s] * f[0]).max(0.0);
+                    let d = new - lambda[s];
+                    if d != 0.0 {
+                        lambda[s] = new;
+                        axpy(d, &w[s][..m], &mut self.w[..m]);
+                        change = change.max(libm::fabs(d * self.diag[s]));
+                    }
+                }
+                KIND_CONTACT => {
+                    let new_n = (lambda[s] - self.w[s] * f[0]).max(0.0);
+                    let dn = new_n - lambda[s];
+                    if dn != 0.0 {
+                        lambda[s] = new_n;
+                        axpy(dn, &w[s][..m], &mut self.w[..m]);
+                        change = change.max(libm::fabs(dn * self.diag[s]));
+                    }
+                    let e = Sym2::unpack(&f[1..11]);
+                    let (t1, t2) = (lambda[s + 1], lambda[s + 2]);
+                    // Part of w_t independent of λ_t.
+                    let g1 = self.w[s + 1] - (e.a * t1 + e.b * t2);
+                    let g2 = self.w[s + 2] - (e.b * t1 + e.c * t2);
+                    let (x1, x2) = e.disk_minimiser(g1, g2, b.mu * lambda[s]);
+                    let (d1, d2) = (x1 - t1, x2 - t2);
+                    if d1 != 0.0 || d2 != 0.0 {
+                        lambda[s + 1] = x1;
+                        lambda[s + 2] = x2;
+                        axpy(d1, &w[s + 1][..m], &mut self.w[..m]);
+                        axpy(d2, &w[s + 2][..m], &mut self.w[..m]);
+                        change = change.max(libm::fabs(d1 * self.diag[s + 1]));
+                        change = change.max(libm::fabs(d2 * self.diag[s + 2]));
+                    }
+                }
+                KIND_SLIDING => {
+                    let e = Sym2::unpack(&f[0..10]);
+                    let (d1, d2) = e.solve(-self.w[s], -self.w[s + 1]);
+                    lambda[s] += d1;
+                    lambda[s + 1] += d2;
+                    axpy(d1, &w[s][..m], &mut self.w[..m]);
+                    axpy(d2, &w[s + 1][..m], &mut self.w[..m]);
+                    change = change.max(libm::fabs(d1 * self.diag[s]));
+                    change = change.max(libm::fabs(d2 * self.diag[s + 1]));
+                    let lat = libm::hypot(lambda[s], lambda[s + 1]);
+                    let bound = b.mu * lat + b.r0;
+                    let a = s + 2;
+                    let new = (lambda[a] - self.w[a] * f[10]).max(-bound).min(bound);
+                    let d = new - lambda[a];
+                    if d != 0.0 {
+                        lambda[a] = new;
+                        axpy(d, &w[a][..m], &mut self.w[..m]);
+                        change = change.max(libm::fabs(d * self.diag[a]));
+                    }
+                }
+                _ => {}
+            }
+        }
+        // NaN-safe: a NaN change must not read as converged.
+        if change.is_nan() {
+            f64::INFINITY
+        } else {
+            change
+        }
+    }
+
+    /// Active-set polish of a frictionless problem (primal-dual active set + CG). Returns `true`
+    /// and overwrites `lambda` when a feasible solution to round-off was found.
+    fn polish(
+        &mut self,
+        w: &[[f64; M]; M],
+        delta: &[f64; M],
+        lambda: &mut [f64; M],
+        scale: f64,
+    ) -> bool {
+        let m = self.m;
+        let mut row_kind = [0u8; M];
+        for b in &self.blocks[..self.n_blocks] {
+            for r in 0..b.len as usize {
+                let i = b.start as usize + r;
+                if i < m {
+                    row_kind[i] = b.kind;
+                }
+            }
+        }
+        for i in 0..m {
+            self.active[i] =
+                u8::from(row_kind[i] != KIND_UNILATERAL || lambda[i] > 0.0 || self.w[i] < 0.0);
+        }
+        let [x, r, p, ap] = &mut self.scratch;
+        for _round in 0..12 {
+            // CG on W_AA x_A = δ_A, x_I = 0, from the current λ.
+            for i in 0..m {
+                x[i] = if self.active[i] != 0 { lambda[i] } else { 0.0 };
+            }
+            let mut rr = 0.0;
+            for i in 0..m {
+                r[i] = if self.active[i] != 0 {
+                    delta[i] - dot(&w[i][..m], &x[..m])
+                } else {
+                    0.0
+                };
+                p[i] = r[i];
+                rr += r[i] * r[i];
+            }
+            let bnorm = dot(&delta[..m], &delta[..m]).max(f64::MIN_POSITIVE);
+            let cap = 10 * m + 50;
+            let mut k = 0;
+            while k < cap && rr > 1e-32 * bnorm {
+                for i in 0..m {
+                    ap[i] = if self.active[i] != 0 {
+                        dot(&w[i][..m], &p[..m])
+                    } else {
+                        0.0
+                    };
+                }
+                let pap = dot(&p[..m], &ap[..m]);
+                if !(pap > 0.0) {
+                    break;
+                }
+                let alpha = rr / pap;
+                axpy(alpha, &p[..m], &mut x[..m]);
+                axpy(-alpha, &ap[..m], &mut r[..m]);
+                let rr_new = dot(&r[..m], &r[..m]);
+                let beta = rr_new / rr;
+                for i in 0..m {
+                    p[i] = r[i] + beta * p[i];
+                }
+                rr = rr_new;
+                k += 1;
+            }
+            // Complementarity check and active-set update.
+            let tol = 1e-13 * scale;
+            let mut changed = false;
+            let mut feasible = true;
+            for i in 0..m {
+                if !x[i].is_finite() {
+                    return false;
+                }
+                if row_kind[i] != KIND_UNILATERAL {
+                    continue;
+                }
+                let wi = dot(&w[i][..m], &x[..m]) - delta[i];
+                if self.active[i] != 0 {
+                    if x[i] < 0.0 {
+                        feasible = false;
+                        self.active[i] = 0;
+                        changed = true;
+                    }
+                } else if wi < -tol {
+                    feasible = false;
+                    self.active[i] = 1;
+                    changed = true;
+                }
+            }
+            if feasible {
+                lambda[..m].copy_from_slice(&x[..m]);
+                for i in 0..m {
+                    self.w[i] = dot(&w[i][..m], &lambda[..m]) - delta[i];
+                }
+                return true;
+            }
+            if !changed {
+                return false;
+            }
+        }
+        false
+    }
+
+    /// The residual `w = W λ − δ` of the last solve (rows `0..m`).
+    pub fn last_residual(&self) -> &[f64] {
+        &self.w[..self.m]
+    }
+}
+
+/// A symmetric 2×2 block `[[a, b], [b, c]]` with its eigen-decomposition (eigenvalues floored at
+/// `1e-13 ·` the largest, so that solves stay finite on singular blocks).
+#[derive(Clone, Copy, Debug)]
+struct Sym2 {
+    a: f64,
+    b: f64,
+    c: f64,
+    l1: f64,
+    l2: f64,
+    cs: f64,
+    sn: f64,
+}
+
+impl Sym2 {
+    fn new(a: f64, b: f64, c: f64) -> Self {
+        let th = 0.5 * libm::atan2(2.0 * b, a - c);
+        let (sn, cs) = libm::sincos(th);
+        let l1 = a * cs * cs + 2.0 * b * cs * sn + c * sn * sn;
+        let l2 = a * sn * sn - 2.0 * b * cs * sn + c * cs * cs;
+        let floor = 1e-13 * l1.max(l2).max(f64::MIN_POSITIVE);
+        Self {
+            a,
+            b,
+            c,
+            l1: l1.max(floor),
+            l2: l2.max(floor),
+            cs,
+            sn,
+        }
+    }
+
+    fn pack(&self) -> [f64; 10] {
+        [
+            self.a, self.b, self.c, self.l1, self.l2, self.cs, self.sn, 0.0, 0.0, 0.0,
+        ]
+    }
+
+    fn unpack(f: &[f64]) -> Self {
+        Self {
+            a: f[0],
+            b: f[1],
+            c: f[2],
+            l1: f[3],
+            l2: f[4],
+            cs: f[5],
+            sn: f[6],
+        }
+    }
+
+    /// Solves `A x = (r1, r2)` through the (floored) eigen-decomposition.
+    #[inline]
+    fn solve(&self, r1: f64, r2: f64) -> (f64, f64) {
+        let (u1, u2) = (self.cs * r1 + self.sn * r2, -self.sn * r1 + self.cs * r2);
+        let (y1, y2) = (u1 / self.l1, u2 / self.l2);
+        (self.cs * y1 - self.sn * y2, self.sn * y1 + self.cs * y2)
+    }
+
+    /// `argmin ½ xᵀ A x + gᵀ x` subject to `|x| ≤ rho` (2-D trust-region problem).
+    fn disk_minimiser(&self, g1: f64, g2: f64, rho: f64) -> (f64, f64) {
+        if !(rho > 0.0) {
+            return (0.0, 0.0);
+        }
+        let (h1, h2) = (self.cs * g1 + self.sn * g2, -self.sn * g1 + self.cs * g2);
+        let norm = |nu: f64| libm::hypot(h1 / (self.l1 + nu), h2 / (self.l2 + nu));
+        let (mut y1, mut y2);
+        if norm(0.0) <= rho {
+            y1 = -h1 / self.l1;
+            y2 = -h2 / self.l2;
+        } else {
+            // Newton on φ(ν) = 1/|x(ν)| − 1/ρ (Moré–Sorensen): increasing and concave, so the
+            // iterates rise monotonically to the root from ν = 0.
+            let mut nu = 0.0f64;
+            for _ in 0..60 {
+                let (a1, a2) = (self.l1 + nu, self.l2 + nu);
+                let (z1, z2) = (h1 / a1, h2 / a2);
+                let n2 = z1 * z1 + z2 * z2;
+                let n = libm::sqrt(n2);
+                let phi = 1.0 / n - 1.0 / rho;
+                let dphi = (z1 * z1 / a1 + z2 * z2 / a2) / (n2 * n);
+                if !(dphi > 0.0) {
+                    break;
+                }
+                let step = phi / dphi;
+                nu -= step;
+                if !(nu >= 0.0) {
+                    nu = 0.0;
+                }
+                if libm::fabs(step) <= 1e-15 * (nu + self.l1.max(self.l2)) {
+                    break;
+                }
+            }
+            y1 = -h1 / (self.l1 + nu);
+            y2 = -h2 / (self.l2 + nu);
+            let n = libm::hypot(y1, y2);
+            if n > rho && n > 0.0 {
+                y1 *= rho / n;
+                y2 *= rho / n;
+            }
+        }
+        if !(y1.is_finite() && y2.is_finite()) {
+            return (0.0, 0.0);
+        }
+        (self.cs * y1 - self.sn * y2, self.sn * y1 + self.cs * y2)
+    }
+}

@@ -1,0 +1,205 @@
+//! Inverse kinematics of the needle base: damped least squares for a position + axis target.
+//!
+//! The tool point (needle base `B`) must reach `p*` with its z axis along `a*`; the roll about
+//! the axis is free. Each iteration solves the damped least-squares problem
+//! `min ‖J Δq − e‖² + λ² ‖Δq‖²` for the 6-row task `e = [p* − p(q); w_a · (z(q) × a*)]`
+//! (the axis error is the rotation taking `z` onto `a*`, its component along `z` — the roll — is
+//! projected out of the task, so the task has rank 5), then adds a null-space motion towards the
+//! seed (which the caller picks: the current joints, or mid-range), and clamps into the joint
+//! limits. It places the needle at the start of a scene; the naive (rigid) baseline follows a
+//! path with it.
+
+use crate::kinematics::DhChain;
+use core::fmt;
+use nalgebra::{SMatrix, SVector, Vector3};
+
+/// Tuning of [`solve_ik`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct IkParams {
+    /// Iteration cap.
+    pub max_iterations: u32,
+    /// Converged when the position error is below this [mm] …
+    pub position_tolerance: f64,
+    /// … and the axis angle below this [rad].
+    pub angle_tolerance: f64,
+    /// Damping λ of the least-squares step [mm/rad].
+    pub damping: f64,
+    /// Weight of the axis rows (turns radians into mm) [mm/rad].
+    pub axis_weight: f64,
+    /// Gain of the null-space pull towards the seed per iteration [-], in `[0, 1]`.
+    pub seed_gain: f64,
+    /// Largest joint change per iteration [rad].
+    pub max_step: f64,
+}
+
+impl Default for IkParams {
+    fn default() -> Self {
+        Self {
+            max_iterations: 200,
+            position_tolerance: 1e-6,
+            angle_tolerance: 1e-8,
+            damping: 1.0,
+            axis_weight: 100.0,
+            seed_gain: 0.1,
+            max_step: 0.2,
+        }
+    }
+}
+
+/// Outcome of [`solve_ik`] (not converging is reported here, not an error).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct IkReport<const N: usize> {
+    /// Final joints, within the limits [rad].
+    pub q: [f64; N],
+    /// Whether both tolerances were met.
+    pub converged: bool,
+    /// Iterations performed.
+    pub iterations: u32,
+    /// Final tool-point position error [mm].
+    pub position_error: f64,
+    /// Final angle between the tool z axis and the target axis [rad].
+    pub angle_error: f64,
+}
+
+/// Invalid IK input.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[non_exhaustive]
+pub enum IkError {
+    /// A target, seed or parameter value is NaN or infinite.
+    NonFinite {
+        /// Which input.
+        field: &'static str,
+    },
+    /// The target axis has zero length.
+    ZeroAxis,
+}
+
+impl fmt::Display for IkError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::NonFinite { field } => write!(f, "non-finite IK input {field}"),
+            Self::ZeroAxis => write!(f, "IK target axis has zero length"),
+        }
+    }
+}
+
+impl core::error::Error for IkError {}
+
+/// Places the tool point at `position` [mm, world] with the tool z axis along `axis` (any
+/// length), starting from and staying near `seed` [rad].
+///
+/// # Errors
+/// [`IkError`] for non-finite input or a zero axis; failing to converge is reported in
+/// [`IkReport::converged`].
+pub fn solve_ik<const N: usize>(
+    chain: &DhChain<N>,
+    position: [f64; 3],
+    axis: [f64; 3],
+    seed: &[f64; N],
+    params: &IkParams,
+) -> Result<IkReport<N>, IkError> {
+    let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
+    if !finite(&position) {
+        return Err(IkError::NonFinite { field: "position" });
+    }
+    if !finite(&axis) {
+        return Err(IkError::NonFinite { field: "axis" });
+    }
+    if !finite(seed) {
+        return Err(IkError::NonFinite { field: "seed" });
+    }
+    let pr = [
+        params.position_tolerance,
+        params.angle_tolerance,
+        params.damping,
+        params.axis_weight,
+        params.seed_gain,
+        params.max_step,
+    ];
+    if !finite(&pr) {
+        return Err(IkError::NonFinite { field: "params" });
+    }
+    let target = Vector3::from(position);
+    let a = Vector3::from(axis);
+    let an = a.norm();
+    if !(an > 0.0) {
+        return Err(IkError::ZeroAxis);
+    }
+    let a = a / an;
+    let mut q = *seed;
+    chain.clamp_to_limits(&mut q);
+    let lam2 = params.damping * params.damping;
+    let wa = params.axis_weight;
+    let mut report = IkReport {
+        q,
+        converged: false,
+        iterations: 0,
+        position_error: 0.0,
+        angle_error: 0.0,
+    };
+    loop {
+        let (jac, b) = chain.jacobian_tool(&q);
+        let z = b.z_axis();
+        let ep = target - b.translation;
+        let cross = z.cross(&a);
+        report.position_error = ep.norm();
+        report.angle_error = libm::atan2(cross.norm(), z.dot(&a));
+        report.q = q;
+        if report.position_error <= params.position_tolerance
+            && report.angle_error <= params.angle_tolerance
+        {
+            report.converged = true;
+            return Ok(report);
+        }
+        if report.iterations >= params.max_iterations {
+            return Ok(report);
+        }
+        report.iterations += 1;
+        // Axis error: rotation vector taking z onto a (exact angle, not sin), roll removed.
+        let sin = cross.norm();
+        let ea = if sin > 1e-300 {
+            cross * (report.angle_error / sin)
+        } else if z.dot(&a) < 0.0 {
+            // Antiparallel: any axis ⊥ z works; pick one.
+            let t = if libm::fabs(z[0]) < 0.9 {
+                Vector3::x()
+            } else {
+                Vector3::y()
+            };
+            z.cross(&t).normalize() * core::f64::consts::PI
+        } else {
+            Vector3::zeros()
+        };
+        let proj = nalgebra::Matrix3::identity() - z * z.transpose();
+        let mut jt = SMatrix::<f64, 6, N>::zeros();
+        let jw = proj * jac.fixed_rows::<3>(3);
+        jt.fixed_rows_mut::<3>(0).copy_from(&jac.fixed_rows::<3>(0));
+        jt.fixed_rows_mut::<3>(3).copy_from(&(jw * wa));
+        let mut e = SVector::<f64, 6>::zeros();
+        e.fixed_rows_mut::<3>(0).copy_from(&ep);
+        e.fixed_rows_mut::<3>(3).copy_from(&(proj * ea * wa));
+        let m = jt * jt.transpose() + SMatrix::<f64, 6, 6>::identity() * lam2;
+        let Some(ch) = m.cholesky() else {
+            return Ok(report);
+        };
+        let mut dq: SVector<f64, N> = jt.transpose() * ch.solve(&e);
+        // Null-space pull towards the seed: (I − J⁺J) k (q_seed − q), J⁺ the damped inverse.
+        let mut pull = SVector::<f64, N>::zeros();
+        for i in 0..N {
+            pull[i] = params.seed_gain * (seed[i] - q[i]);
+        }
+        let jp: SVector<f64, N> = jt.transpose() * ch.solve(&(jt * pull));
+        dq += pull - jp;
+        let big = dq.amax();
+        if big > params.max_step && big > 0.0 {
+            dq *= params.max_step / big;
+        }
+        if !dq.iter().all(|x| x.is_finite()) {
+            return Ok(report);
+        }
+        for i in 0..N {
+            q[i] += dq[i];
+        }
+        chain.clamp_to_limits(&mut q);
+    }
+}

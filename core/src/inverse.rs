@@ -1,0 +1,484 @@
+//! Inverse update (paper §IV): one damped Newton step of the joints `q` on the objective
+//!
+//! ```text
+//! T(q) = ( e_x, e_y, e_z, w_θ · (k θ1 + (1 − k) θ2) ),   e = target − tip
+//! ```
+//!
+//! evaluated through a constraint solve. Only the 6 base rows of `δ` depend on `q`
+//! (`δ_base(q)`, docs/architecture.md); `W`, the other rows and the observation rows
+//! `o = o_free + C λ` stay fixed within a step, so `T` at any `q` costs one Gauss-Seidel solve and
+//! no mesh.
+//!
+//! One step ([`Controller::step`]):
+//! 1. validate the frame and factor the diagonal blocks of `W` once ([`BlockGs::prepare_frame`]);
+//! 2. solve at the frame's `q` (warm start: the previous step's `λ`) → `λ_q`, `T(q)`;
+//! 3. if `‖T‖² ≤ tolerance`: stop, command `q` and `λ_q` (1 solve);
+//! 4. Jacobian by forward differences, column `i` from a solve at `q + δq·e_i` warm-started from
+//!    `λ_q`: `J_i = (T(q + δq e_i) − T(q)) / δq`. (The paper's eq. 14 writes the negative,
+//!    `(T(q) − T(q + δq_i)) / δq`, with `Δq = J⁻¹ T`; both give the same Newton step.)
+//! 5. damped least squares `Δq = −Jᵀ (J Jᵀ + ε² I)⁻¹ T`, so that `T + J Δq ≈ 0`; `ε` grows when
+//!    the smallest singular value of `J` falls below a threshold (the RV-1A wrist is near singular
+//!    in the benchmark pose);
+//! 6. scale `Δq` uniformly so that `|Δq_i| ≤ v_max,i · dt` (keeps the Newton direction), then clamp
+//!    `q + Δq` into the joint limits; both are reported as saturation flags;
+//! 7. final solve at `q + Δq` (warm start `λ_q`) → the `λ` the host applies.
+//!
+//! That is 1 + 6 + 1 = 8 solves. The base solve is done at this frame's `q` rather than reusing
+//! the previous step's state as in the paper's Algorithm 1 (line 5): the previous state was
+//! computed before this step's free motion, so differencing against it would mix this step's
+//! free motion into `J` and into `T`. Solving at `q` with the current `W` and `δ_free` makes both
+//! ends of every difference see the same free motion.
+
+use crate::constraint::{BlockGs, GsParams, SolveReport};
+use crate::kinematics::{DhChain, Pose};
+use crate::math::{angle_between, rotation_log};
+use crate::payload::{
+    Command, ComplianceFrame, JOINTS, ObsIndex, SolverReport, StatusFlags, VERSION, ValidationError,
+};
+use core::fmt;
+use nalgebra::{Matrix3, Matrix4, SMatrix, SVector, Vector3, Vector4};
+
+/// Tuning of the inverse update, `Default` gives the documented values.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct InverseParams {
+    /// Finite-difference joint perturbation δq [rad] (default 0.01).
+    pub joint_step: f64,
+    /// Depth d over which the angular objective blends from θ1 to θ2 [mm] (default 20).
+    pub blend_depth: f64,
+    /// Weight w_θ of the angular objective [mm/rad] (default 100: 1° counts like 1.75 mm).
+    pub angle_weight: f64,
+    /// Damping ε of the pseudo-inverse away from singularities [mm/rad] (default 1).
+    pub damping: f64,
+    /// Extra damping added at a singularity [mm/rad] (default 50).
+    pub damping_max: f64,
+    /// Smallest singular value of J below which the damping rises towards `damping_max`
+    /// [mm/rad] (default 20).
+    pub singular_threshold: f64,
+    /// Skip the Jacobian when `‖T‖² ≤ tolerance` [mm²] (default 1e-6).
+    pub tolerance: f64,
+    /// Constraint-solve tuning for every solve of the step.
+    pub gs: GsParams,
+    /// Warm-start the first solve of a step from the previous step's `λ` (default true).
+    pub warm_start: bool,
+}
+
+impl Default for InverseParams {
+    fn default() -> Self {
+        Self {
+            joint_step: 0.01,
+            blend_depth: 20.0,
+            angle_weight: 100.0,
+            damping: 1.0,
+            damping_max: 50.0,
+            singular_threshold: 20.0,
+            tolerance: 1e-6,
+            gs: GsParams {
+                tolerance: 1e-10,
+                max_iterations: 400,
+                polish: false,
+            },
+            warm_start: true,
+        }
+    }
+}
+
+/// Why an inverse step failed; the command is then left untouched.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[non_exhaustive]
+pub enum StepError {
+    /// The frame failed validation.
+    InvalidFrame(ValidationError),
+    /// A parameter is invalid (non-finite or non-positive where positivity is required).
+    InvalidParameter {
+        /// Parameter name.
+        name: &'static str,
+    },
+    /// A computed quantity was not finite (should not happen on validated data).
+    NonFinite {
+        /// Where.
+        stage: &'static str,
+    },
+}
+
+impl fmt::Display for StepError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::InvalidFrame(e) => write!(f, "invalid frame: {e}"),
+            Self::InvalidParameter { name } => write!(f, "invalid parameter {name}"),
+            Self::NonFinite { stage } => write!(f, "non-finite result in {stage}"),
+        }
+    }
+}
+
+impl core::error::Error for StepError {
+    fn source(&self) -> Option<&(dyn core::error::Error + 'static)> {
+        match self {
+            Self::InvalidFrame(e) => Some(e),
+            _ => None,
+        }
+    }
+}
+
+impl From<ValidationError> for StepError {
+    fn from(e: ValidationError) -> Self {
+        Self::InvalidFrame(e)
+    }
+}
+
+/// Blend factor `k` of the angular objective.
+///
+/// This follows the paper's *text* (§IV-A), not its eq. 13: in the air (not inserted) only the
+/// tip angle θ1 counts (`k = 1`); once inserted, `k` falls linearly from 1 at the entry point to
+/// 0 at depth `d`, beyond which only the base angle θ2 counts (`k = 0`). Eq. 13 as printed
+/// (`k = 0` outside the gel, `k = l/d`, then 1) contradicts the text and would steer by θ2 in the
+/// air, where θ2 is zero by construction.
+pub fn blend_factor(inserted: bool, depth: f64, d: f64) -> f64 {
+    if !inserted {
+        return 1.0;
+    }
+    if !(d > 0.0) {
+        return 0.0;
+    }
+    (1.0 - depth / d).clamp(0.0, 1.0)
+}
+
+/// Breakdown of an objective evaluation.
+#[derive(Clone, Copy, Debug, PartialEq, Default)]
+pub struct Objective {
+    /// `T = (e_x, e_y, e_z, w_θ (k θ1 + (1 − k) θ2))` [mm].
+    pub t: [f64; 4],
+    /// Tip-direction angle θ1 to the target tangent [rad].
+    pub theta1: f64,
+    /// Base-direction angle θ2 to the entry point [rad].
+    pub theta2: f64,
+    /// Blend factor k [-].
+    pub k: f64,
+}
+
+/// Rotation matrix from the frame's row-major array.
+fn r_free(frame_r: &[[f64; 3]; 3]) -> Matrix3<f64> {
+    let r = frame_r;
+    Matrix3::new(
+        r[0][0], r[0][1], r[0][2], r[1][0], r[1][1], r[1][2], r[2][0], r[2][1], r[2][2],
+    )
+}
+
+/// The base-row violation `δ_base(q)` for the needle-base pose `b`: translation `p_B − p_free`
+/// [mm], rotation `log(R_B R_freeᵀ)` [rad], world frame.
+pub fn base_violation(b: &Pose, p_free: &[f64; 3], r_free_rows: &[[f64; 3]; 3]) -> [f64; 6] {
+    let dp = b.translation - Vector3::from(*p_free);
+    let dr = rotation_log(&(b.rotation * r_free(r_free_rows).transpose()));
+    [dp[0], dp[1], dp[2], dr[0], dr[1], dr[2]]
+}
+
+/// The objective for constraint forces `lambda` and needle-base pose `b` (from forward
+/// kinematics), see the module docs.
+pub fn evaluate_objective<const M: usize>(
+    frame: &ComplianceFrame<M>,
+    lambda: &[f64; M],
+    b: &Pose,
+    params: &InverseParams,
+) -> Objective {
+    let v = |idx| Vector3::from(frame.observe(idx, lambda));
+    let tip = v(ObsIndex::TIP_POSITION);
+    let tip_dir = v(ObsIndex::TIP_DIRECTION);
+    let target = v(ObsIndex::TARGET_POINT);
+    let tangent = v(ObsIndex::TARGET_TANGENT);
+    let entry = v(ObsIndex::ENTRY_POINT);
+    let e = target - tip;
+    let theta1 = angle_between(&tip_dir, &tangent);
+    let theta2 = angle_between(&b.z_axis(), &(entry - b.translation));
+    let k = blend_factor(
+        frame.inserted != 0,
+        frame.insertion_depth,
+        params.blend_depth,
+    );
+    let ang = params.angle_weight * (k * theta1 + (1.0 - k) * theta2);
+    Objective {
+        t: [e[0], e[1], e[2], ang],
+        theta1,
+        theta2,
+        k,
+    }
+}
+
+/// The inverse controller: owns the robot, the tuning and every scratch buffer of a step (block
+/// factors, λ buffers), so that [`Self::step`] allocates nothing. `M` is the row capacity.
+///
+/// About `M · 0.3 KiB` (60 KiB at `M = 192`); on small stacks keep it in a `static` or a `Box`.
+#[derive(Clone, Debug)]
+pub struct Controller<const M: usize> {
+    /// The robot (DH chain, limits, base and tool transforms).
+    pub chain: DhChain<JOINTS>,
+    /// Tuning.
+    pub params: InverseParams,
+    gs: BlockGs<M>,
+    delta: [f64; M],
+    lambda_base: [f64; M],
+    lambda_work: [f64; M],
+    lambda_prev: [f64; M],
+    prev_m: usize,
+}
+
+impl<const M: usize> Controller<M> {
+    const CAPACITY_OK: () = assert!(
+        M >= crate::payload::BASE_ROWS,
+        "M must hold the 6 base rows"
+    );
+
+    /// A controller for `chain` with tuning `params`.
+    pub fn new(chain: DhChain<JOINTS>, params: InverseParams) -> Self {
+        let () = Self::CAPACITY_OK;
+        Self {
+            chain,
+            params,
+            gs: BlockGs::new(),
+            delta: [0.0; M],
+            lambda_base: [0.0; M],
+            lambda_work: [0.0; M],
+            lambda_prev: [0.0; M],
+            prev_m: 0,
+        }
+    }
+
+    /// Forgets the previous step's `λ` (next step starts the solver from zero).
+    pub fn reset_warm_start(&mut self) {
+        self.prev_m = 0;
+    }
+
+    fn check_params(&self) -> Result<(), StepError> {
+        let p = &self.params;
+        let pos = |x: f64| x.is_finite() && x > 0.0;
+        let nonneg = |x: f64| x.is_finite() && x >= 0.0;
+        let checks = [
+            (pos(p.joint_step), "joint_step"),
+            (nonneg(p.blend_depth), "blend_depth"),
+            (nonneg(p.angle_weight), "angle_weight"),
+            (nonneg(p.damping), "damping"),
+            (nonneg(p.damping_max), "damping_max"),
+            (nonneg(p.singular_threshold), "singular_threshold"),
+            (nonneg(p.tolerance), "tolerance"),
+        ];
+        for (ok, name) in checks {
+            if !ok {
+                return Err(StepError::InvalidParameter { name });
+            }
+        }
+        Ok(())
+    }
+
+    /// Writes `δ_base(q)` into rows 0..6 and solves into `lambda_work` (warm start: its current
+    /// content); returns the tool pose and the report.
+    fn solve_at(
+        &mut self,
+        frame: &ComplianceFrame<M>,
+        q: &[f64; JOINTS],
+        into_base: bool,
+    ) -> (Pose, SolveReport) {
+        let b = self.chain.tool_pose(q);
+        let d = base_violation(&b, &frame.p_free, &frame.r_free);
+        self.delta[..6].copy_from_slice(&d);
+        let lambda = if into_base {
+            &mut self.lambda_base
+        } else {
+            &mut self.lambda_work
+        };
+        let rep = self
+            .gs
+            .solve(&frame.w, &self.delta, lambda, &self.params.gs);
+        (b, rep)
+    }
+
+    /// The objective `T(q)` at joints `q` for `frame` (one constraint solve, from zero). For
+    /// tests and diagnostics; not part of the real-time path.
+    ///
+    /// # Errors
+    /// [`StepError::InvalidFrame`] when the frame fails validation.
+    pub fn objective_at(
+        &mut self,
+        frame: &ComplianceFrame<M>,
+        q: &[f64; JOINTS],
+    ) -> Result<Objective, StepError> {
+        self.gs.prepare_frame(frame)?;
+        let m = frame.rows();
+        self.delta[..m].copy_from_slice(&frame.delta_free[..m]);
+        self.lambda_work.fill(0.0);
+        let (b, _) = self.solve_at(frame, q, false);
+        Ok(evaluate_objective(
+            frame,
+            &self.lambda_work,
+            &b,
+            &self.params,
+        ))
+    }
+
+    /// One inverse step for `frame`, written into the caller-owned `cmd` (see the module docs for
+    /// the stages). Allocates nothing.
+    ///
+    /// # Errors
+    /// [`StepError`] when the frame or the parameters are invalid; `cmd` is then untouched.
+    pub fn step(
+        &mut self,
+        frame: &ComplianceFrame<M>,
+        cmd: &mut Command<M>,
+    ) -> Result<SolverReport, StepError> {
+        self.check_params()?;
+        // 1. validate + factor the diagonal blocks once for the 8 solves.
+        self.gs.prepare_frame(frame)?;
+        let m = frame.rows();
+        let p = self.params;
+        self.delta[..m].copy_from_slice(&frame.delta_free[..m]);
+
+        // 2. solve at q.
+        if p.warm_start && self.prev_m > 0 {
+            let n = self.prev_m.min(m);
+            self.lambda_base[..n].copy_from_slice(&self.lambda_prev[..n]);
+            self.lambda_base[n..m].fill(0.0);
+        } else {
+            self.lambda_base[..m].fill(0.0);
+        }
+        let q = frame.q;
+        let mut report = SolverReport::default();
+        let (b0, rep) = self.solve_at(frame, &q, true);
+        let count = |report: &mut SolverReport, r: &SolveReport| {
+            report.iterations = report.iterations.saturating_add(r.iterations);
+            report.solves += 1;
+            if !r.converged {
+                report.flags |= StatusFlags::NOT_CONVERGED;
+            }
+        };
+        count(&mut report, &rep);
+        let obj0 = evaluate_objective(frame, &self.lambda_base, &b0, &p);
+        let t0 = Vector4::from(obj0.t);
+        report.objective = obj0.t;
+
+        let mut q_new = q;
+        let mut final_rep = rep;
+        if t0.norm_squared() <= p.tolerance {
+            // 3. within tolerance: hold, λ from the base solve.
+            report.flags |= StatusFlags::WITHIN_TOLERANCE;
+            self.lambda_work[..m].copy_from_slice(&self.lambda_base[..m]);
+            report.objective_after = obj0.t;
+        } else {
+            // 4. Jacobian by forward differences, W fixed, warm start λ_q.
+            let mut jac = SMatrix::<f64, 4, JOINTS>::zeros();
+            for i in 0..JOINTS {
+                let mut qi = q;
+                qi[i] += p.joint_step;
+                self.lambda_work[..m].copy_from_slice(&self.lambda_base[..m]);
+                let (bi, r) = self.solve_at(frame, &qi, false);
+                count(&mut report, &r);
+                let ti = evaluate_objective(frame, &self.lambda_work, &bi, &p);
+                for r in 0..4 {
+                    jac[(r, i)] = (ti.t[r] - obj0.t[r]) / p.joint_step;
+                }
+            }
+            // 5. damped least squares with singularity-adaptive damping.
+            let jjt: Matrix4<f64> = jac * jac.transpose();
+            let sigma_min = libm::sqrt(smallest_eigenvalue(&jjt).max(0.0));
+            let mut eps2 = p.damping * p.damping;
+            if sigma_min < p.singular_threshold {
+                let r = sigma_min / p.singular_threshold;
+                eps2 += (1.0 - r * r) * p.damping_max * p.damping_max;
+                report.flags |= StatusFlags::NEAR_SINGULAR;
+            }
+            let mut dq = SVector::<f64, JOINTS>::zeros();
+            match (jjt + Matrix4::identity() * eps2).cholesky() {
+                Some(ch) => {
+                    let y = ch.solve(&t0);
+                    dq = -(jac.transpose() * y);
+                }
+                None => report.flags |= StatusFlags::TARGET_UNREACHABLE,
+            }
+            if !dq.iter().all(|x| x.is_finite()) {
+                dq.fill(0.0);
+                report.flags |= StatusFlags::TARGET_UNREACHABLE;
+            }
+            // 6. speed limit (uniform scaling), then joint limits.
+            let mut scale = 1.0f64;
+            for i in 0..JOINTS {
+                let lim = self.chain.limits[i].max_speed * frame.dt;
+                let a = libm::fabs(dq[i]);
+                if a > lim {
+                    scale = scale.min(if lim > 0.0 { lim / a } else { 0.0 });
+                }
+            }
+            if scale < 1.0 {
+                dq *= scale;
+                report.flags |= StatusFlags::SATURATED_SPEED;
+            }
+            for i in 0..JOINTS {
+                q_new[i] = q[i] + dq[i];
+            }
+            if self.chain.clamp_to_limits(&mut q_new) {
+                report.flags |= StatusFlags::SATURATED_LIMIT;
+            }
+            // A frame outside the limits must still respect the speed limit.
+            for i in 0..JOINTS {
+                let lim = self.chain.limits[i].max_speed * frame.dt;
+                q_new[i] = q_new[i].max(q[i] - lim).min(q[i] + lim);
+            }
+            let mut applied = SVector::<f64, JOINTS>::zeros();
+            for i in 0..JOINTS {
+                applied[i] = q_new[i] - q[i];
+            }
+            let predicted = t0 + jac * applied;
+            if predicted.norm() > 0.99 * t0.norm() {
+                report.flags |= StatusFlags::TARGET_UNREACHABLE;
+            }
+            // 7. final solve at q + Δq.
+            self.lambda_work[..m].copy_from_slice(&self.lambda_base[..m]);
+            let (bf, r) = self.solve_at(frame, &q_new, false);
+            count(&mut report, &r);
+            final_rep = r;
+            report.objective_after = evaluate_objective(frame, &self.lambda_work, &bf, &p).t;
+        }
+        report.final_iterations = final_rep.iterations;
+        report.final_residual = final_rep.residual;
+        for i in 0..JOINTS {
+            report.delta_q[i] = q_new[i] - q[i];
+        }
+        if !q_new.iter().all(|x| x.is_finite())
+            || !self.lambda_work[..m].iter().all(|x| x.is_finite())
+        {
+            return Err(StepError::NonFinite {
+                stage: "final solve",
+            });
+        }
+        self.lambda_prev[..m].copy_from_slice(&self.lambda_work[..m]);
+        self.prev_m = m;
+
+        cmd.version = VERSION;
+        cmd.m = frame.m;
+        cmd.frame_sequence = frame.sequence;
+        cmd.q = q_new;
+        cmd.lambda[..m].copy_from_slice(&self.lambda_work[..m]);
+        cmd.lambda[m..].fill(0.0);
+        cmd.report = report;
+        Ok(report)
+    }
+}
+
+/// Smallest eigenvalue of a symmetric 4×4 matrix (NaN-safe: 0 for non-finite input).
+fn smallest_eigenvalue(a: &Matrix4<f64>) -> f64 {
+    if !a.iter().all(|x| x.is_finite()) {
+        return 0.0;
+    }
+    let eig = nalgebra::SymmetricEigen::new(*a);
+    eig.eigenvalues.iter().fold(f64::INFINITY, |m, &x| m.min(x))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn blend_follows_the_text() {
+        assert_eq!(blend_factor(false, 0.0, 20.0), 1.0);
+        assert_eq!(blend_factor(false, 50.0, 20.0), 1.0);
+        assert_eq!(blend_factor(true, 0.0, 20.0), 1.0);
+        assert!((blend_factor(true, 5.0, 20.0) - 0.75).abs() < 1e-15);
+        assert_eq!(blend_factor(true, 20.0, 20.0), 0.0);
+        assert_eq!(blend_factor(true, 80.0, 20.0), 0.0);
+    }
+}

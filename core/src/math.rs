@@ -1,0 +1,166 @@
+//! Small numerical kernels shared by the solver and the inverse update (crate-private).
+
+use nalgebra::{Matrix3, Quaternion, UnitQuaternion, Vector3};
+
+/// Dot product with four independent accumulators (lets the compiler vectorise without
+/// reassociation).
+#[inline]
+pub(crate) fn dot(a: &[f64], b: &[f64]) -> f64 {
+    let n = a.len().min(b.len());
+    let (a, b) = (&a[..n], &b[..n]);
+    let mut acc = [0.0f64; 4];
+    let mut ca = a.chunks_exact(4);
+    let mut cb = b.chunks_exact(4);
+    for (x, y) in (&mut ca).zip(&mut cb) {
+        acc[0] += x[0] * y[0];
+        acc[1] += x[1] * y[1];
+        acc[2] += x[2] * y[2];
+        acc[3] += x[3] * y[3];
+    }
+    let mut tail = 0.0;
+    for (x, y) in ca.remainder().iter().zip(cb.remainder()) {
+        tail += x * y;
+    }
+    (acc[0] + acc[2]) + (acc[1] + acc[3]) + tail
+}
+
+/// `y += alpha · x`.
+#[inline]
+pub(crate) fn axpy(alpha: f64, x: &[f64], y: &mut [f64]) {
+    for (yi, xi) in y.iter_mut().zip(x) {
+        *yi += alpha * xi;
+    }
+}
+
+/// Largest absolute entry (0 for an empty slice; NaN-safe: NaN entries are ignored).
+#[inline]
+pub(crate) fn max_abs(v: &[f64]) -> f64 {
+    v.iter().fold(0.0, |m, x| {
+        if libm::fabs(*x) > m {
+            libm::fabs(*x)
+        } else {
+            m
+        }
+    })
+}
+
+/// Rotation vector `log(R)` [rad], accurate for small angles (no `acos`) and finite for any
+/// input. `r` is assumed orthonormal.
+pub(crate) fn rotation_log(r: &Matrix3<f64>) -> Vector3<f64> {
+    let rot = nalgebra::Rotation3::from_matrix_unchecked(*r);
+    let q: UnitQuaternion<f64> = UnitQuaternion::from_rotation_matrix(&rot);
+    quaternion_log(q.quaternion())
+}
+
+fn quaternion_log(q: &Quaternion<f64>) -> Vector3<f64> {
+    let (mut w, mut v) = (q.w, q.imag());
+    if w < 0.0 {
+        w = -w;
+        v = -v;
+    }
+    let s = v.norm();
+    if !(s > 1e-300) {
+        return Vector3::zeros();
+    }
+    let angle = 2.0 * libm::atan2(s, w);
+    v * (angle / s)
+}
+
+/// Angle between two vectors [rad] in `[0, π]`, via `atan2(|a×b|, a·b)` (accurate near 0 and π);
+/// 0 when either vector is zero.
+pub(crate) fn angle_between(a: &Vector3<f64>, b: &Vector3<f64>) -> f64 {
+    let c = a.cross(b).norm();
+    let d = a.dot(b);
+    if c == 0.0 && d == 0.0 {
+        return 0.0;
+    }
+    libm::atan2(c, d)
+}
+
+/// In-place inverse of a symmetric positive (semi-)definite `n × n` block (`n ≤ 6`) stored
+/// row-major in `a[..n*n]`, through a Cholesky factorisation. A pivot below `1e-13 ·` the largest
+/// diagonal is regularised so that the result is always finite for finite input; returns the
+/// number of regularised pivots.
+pub(crate) fn spd_inverse_in_place(a: &mut [f64], n: usize) -> usize {
+    debug_assert!(n <= 6 && a.len() >= n * n);
+    let mut l = [0.0f64; 36];
+    let mut dmax = 0.0f64;
+    for i in 0..n {
+        dmax = dmax.max(libm::fabs(a[i * n + i]));
+    }
+    let floor = if dmax > 0.0 { 1e-13 * dmax } else { 1.0 };
+    let mut fixed = 0;
+    for j in 0..n {
+        let mut d = a[j * n + j];
+        for k in 0..j {
+            d -= l[j * 6 + k] * l[j * 6 + k];
+        }
+        if !(d > floor) {
+            d = floor;
+            fixed += 1;
+        }
+        let djj = libm::sqrt(d);
+        l[j * 6 + j] = djj;
+        for i in (j + 1)..n {
+            let mut s = a[i * n + j];
+            for k in 0..j {
+                s -= l[i * 6 + k] * l[j * 6 + k];
+            }
+            l[i * 6 + j] = s / djj;
+        }
+    }
+    // inv = L⁻ᵀ L⁻¹, column by column.
+    for c in 0..n {
+        let mut y = [0.0f64; 6];
+        for i in 0..n {
+            let mut s = if i == c { 1.0 } else { 0.0 };
+            for k in 0..i {
+                s -= l[i * 6 + k] * y[k];
+            }
+            y[i] = s / l[i * 6 + i];
+        }
+        let mut x = [0.0f64; 6];
+        for i in (0..n).rev() {
+            let mut s = y[i];
+            for k in (i + 1)..n {
+                s -= l[k * 6 + i] * x[k];
+            }
+            x[i] = s / l[i * 6 + i];
+        }
+        for i in 0..n {
+            a[i * n + c] = x[i];
+        }
+    }
+    fixed
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn log_small_and_large_angles() {
+        for &ang in &[1e-12, 1e-6, 0.3, 3.0] {
+            let axis = Vector3::new(1.0, -2.0, 0.5).normalize();
+            let r = nalgebra::Rotation3::from_scaled_axis(axis * ang);
+            let v = rotation_log(r.matrix());
+            assert!(
+                (v - axis * ang).norm() <= 1e-15 + 1e-12 * ang,
+                "{ang}: {v:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn spd_inverse_matches() {
+        let mut a = [4.0, 1.0, 0.5, 1.0, 3.0, 0.2, 0.5, 0.2, 2.0];
+        let orig = a;
+        spd_inverse_in_place(&mut a, 3);
+        for i in 0..3 {
+            for j in 0..3 {
+                let s: f64 = (0..3).map(|k| orig[i * 3 + k] * a[k * 3 + j]).sum();
+                assert!((s - if i == j { 1.0 } else { 0.0 }).abs() < 1e-14);
+            }
+        }
+    }
+}
