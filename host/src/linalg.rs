@@ -1,0 +1,334 @@
+//! Sparse symmetric matrices with a fixed pattern and their Cholesky factorisation.
+//!
+//! This is the one module that talks to `faer` (0.24): an upstream rename touches only this file.
+//! The pattern is built once; each step only the values change. The fill-reducing ordering and
+//! the symbolic factorisation are computed once ([`Cholesky::try_new`]); each step runs the
+//! numeric `L Lᵀ` factorisation into preallocated storage ([`Cholesky::factorize`]) and the
+//! solves reuse preallocated scratch ([`Cholesky::solve_in_place`]). Single-threaded
+//! (`Par::Seq`): at the sizes of this project one thread is faster than two.
+
+use faer::dyn_stack::{MemBuffer, MemStack, StackReq};
+use faer::linalg::cholesky::llt::factor::LltRegularization;
+use faer::sparse::linalg::cholesky::{
+    CholeskySymbolicParams, LltRef, SymbolicCholesky, SymmetricOrdering,
+    factorize_symbolic_cholesky,
+};
+use faer::sparse::{SparseColMatRef, SymbolicSparseColMatRef};
+use faer::{Conj, MatMut, Par, Side, Spec};
+use std::fmt;
+
+/// Why a sparse operation failed.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[non_exhaustive]
+pub enum LinalgError {
+    /// The matrix is not numerically positive definite: the pivot of this (permuted) column was ≤ 0.
+    NotPositiveDefinite {
+        /// Index of the failing pivot in the permuted ordering.
+        pivot: usize,
+    },
+    /// The symbolic analysis failed (out of memory or index overflow).
+    Symbolic,
+    /// No numeric factorisation is available yet ([`Cholesky::factorize`] was not called or failed).
+    NotFactorized,
+    /// A vector has the wrong length.
+    DimensionMismatch {
+        /// Expected length.
+        expected: usize,
+        /// Length given.
+        got: usize,
+    },
+}
+
+impl fmt::Display for LinalgError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match *self {
+            Self::NotPositiveDefinite { pivot } => {
+                write!(
+                    f,
+                    "matrix is not positive definite (non-positive pivot at permuted column {pivot})"
+                )
+            }
+            Self::Symbolic => write!(f, "symbolic Cholesky analysis failed"),
+            Self::NotFactorized => write!(f, "no numeric factorisation available"),
+            Self::DimensionMismatch { expected, got } => {
+                write!(f, "vector length {got}, expected {expected}")
+            }
+        }
+    }
+}
+
+impl std::error::Error for LinalgError {}
+
+/// Upper-triangular compressed-column pattern of a symmetric `n × n` matrix (row ≤ column),
+/// with every diagonal entry present and row indices sorted within each column.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct SymmetricPattern {
+    n: usize,
+    col_ptr: Vec<usize>,
+    row_idx: Vec<usize>,
+}
+
+impl SymmetricPattern {
+    /// Builds the pattern from `(row, col)` entries in any order, either triangle; duplicates are
+    /// merged and every diagonal entry is added.
+    ///
+    /// # Panics
+    /// Panics if an index is `≥ n` (a programming error: entries come from the caller's own maps).
+    pub fn from_entries(n: usize, entries: impl IntoIterator<Item = (usize, usize)>) -> Self {
+        let mut cols: Vec<Vec<usize>> = (0..n).map(|j| vec![j]).collect();
+        for (r, c) in entries {
+            assert!(
+                r < n && c < n,
+                "pattern entry ({r}, {c}) out of range for n = {n}"
+            );
+            let (r, c) = if r <= c { (r, c) } else { (c, r) };
+            cols[c].push(r);
+        }
+        let mut col_ptr = Vec::with_capacity(n + 1);
+        let mut row_idx = Vec::new();
+        col_ptr.push(0);
+        for mut col in cols {
+            col.sort_unstable();
+            col.dedup();
+            row_idx.extend_from_slice(&col);
+            col_ptr.push(row_idx.len());
+        }
+        Self {
+            n,
+            col_ptr,
+            row_idx,
+        }
+    }
+
+    /// Matrix dimension.
+    pub fn dim(&self) -> usize {
+        self.n
+    }
+
+    /// Number of stored (upper-triangular) entries.
+    pub fn nnz(&self) -> usize {
+        self.row_idx.len()
+    }
+
+    /// Index in the value array of entry `(row, col)` or `(col, row)`; `None` if not in the pattern.
+    pub fn slot(&self, row: usize, col: usize) -> Option<usize> {
+        let (r, c) = if row <= col { (row, col) } else { (col, row) };
+        if c >= self.n {
+            return None;
+        }
+        let (a, b) = (self.col_ptr[c], self.col_ptr[c + 1]);
+        self.row_idx[a..b].binary_search(&r).ok().map(|k| a + k)
+    }
+
+    fn symbolic(&self) -> SymbolicSparseColMatRef<'_, usize> {
+        SymbolicSparseColMatRef::new_checked(self.n, self.n, &self.col_ptr, None, &self.row_idx)
+    }
+}
+
+/// A symmetric sparse matrix: a fixed [`SymmetricPattern`] (upper triangle stored) and its values.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SymmetricMatrix {
+    pattern: SymmetricPattern,
+    /// Values of the stored upper-triangular entries, indexed by [`SymmetricPattern::slot`].
+    pub values: Vec<f64>,
+}
+
+impl SymmetricMatrix {
+    /// A zero matrix with the given pattern.
+    pub fn zeros(pattern: SymmetricPattern) -> Self {
+        let values = vec![0.0; pattern.nnz()];
+        Self { pattern, values }
+    }
+
+    /// The pattern.
+    pub fn pattern(&self) -> &SymmetricPattern {
+        &self.pattern
+    }
+
+    /// Sets every value to zero (the pattern stays).
+    pub fn fill_zero(&mut self) {
+        self.values.iter_mut().for_each(|v| *v = 0.0);
+    }
+
+    /// Entry `(row, col)` (0 outside the pattern).
+    pub fn get(&self, row: usize, col: usize) -> f64 {
+        self.pattern.slot(row, col).map_or(0.0, |s| self.values[s])
+    }
+
+    /// `out = A x` using both triangles.
+    ///
+    /// # Errors
+    /// [`LinalgError::DimensionMismatch`] if `x` or `out` has the wrong length.
+    pub fn mul_vec(&self, x: &[f64], out: &mut [f64]) -> Result<(), LinalgError> {
+        let n = self.pattern.n;
+        for len in [x.len(), out.len()] {
+            if len != n {
+                return Err(LinalgError::DimensionMismatch {
+                    expected: n,
+                    got: len,
+                });
+            }
+        }
+        out.iter_mut().for_each(|v| *v = 0.0);
+        for c in 0..n {
+            for k in self.pattern.col_ptr[c]..self.pattern.col_ptr[c + 1] {
+                let r = self.pattern.row_idx[k];
+                let a = self.values[k];
+                out[r] += a * x[c];
+                if r != c {
+                    out[c] += a * x[r];
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Sparse Cholesky `A = L Lᵀ` with the symbolic part computed once and the numeric part
+/// refreshed by [`Cholesky::factorize`]; all memory is allocated at construction.
+pub struct Cholesky {
+    symbolic: SymbolicCholesky<usize>,
+    l_values: Vec<f64>,
+    factor_mem: MemBuffer,
+    solve_mem: MemBuffer,
+    solve_cols: usize,
+    factorized: bool,
+}
+
+impl fmt::Debug for Cholesky {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("Cholesky")
+            .field("dim", &self.dim())
+            .field("factor_nnz", &self.l_values.len())
+            .field("factorized", &self.factorized)
+            .finish()
+    }
+}
+
+impl Cholesky {
+    /// Fill-reducing ordering (AMD) and symbolic factorisation of `pattern`; scratch for the
+    /// numeric factorisation and for solves with up to `max_rhs` right-hand sides at once.
+    ///
+    /// # Errors
+    /// [`LinalgError::Symbolic`] if faer's analysis fails.
+    pub fn try_new(pattern: &SymmetricPattern, max_rhs: usize) -> Result<Self, LinalgError> {
+        let symbolic = factorize_symbolic_cholesky(
+            pattern.symbolic(),
+            Side::Upper,
+            SymmetricOrdering::Amd,
+            CholeskySymbolicParams::default(),
+        )
+        .map_err(|_| LinalgError::Symbolic)?;
+        let l_values = vec![0.0; symbolic.len_val()];
+        let factor_req = symbolic.factorize_numeric_llt_scratch::<f64>(Par::Seq, Spec::default());
+        let factor_mem = MemBuffer::try_new(factor_req).map_err(|_| LinalgError::Symbolic)?;
+        let solve_cols = max_rhs.max(1);
+        let solve_mem = MemBuffer::try_new(Self::solve_req(&symbolic, solve_cols))
+            .map_err(|_| LinalgError::Symbolic)?;
+        Ok(Self {
+            symbolic,
+            l_values,
+            factor_mem,
+            solve_mem,
+            solve_cols,
+            factorized: false,
+        })
+    }
+
+    fn solve_req(symbolic: &SymbolicCholesky<usize>, cols: usize) -> StackReq {
+        symbolic.solve_in_place_scratch::<f64>(cols, Par::Seq)
+    }
+
+    /// Matrix dimension.
+    pub fn dim(&self) -> usize {
+        self.symbolic.nrows()
+    }
+
+    /// Number of stored values of the factor `L`.
+    pub fn factor_nnz(&self) -> usize {
+        self.l_values.len()
+    }
+
+    /// Whether a valid numeric factorisation is available.
+    pub fn is_factorized(&self) -> bool {
+        self.factorized
+    }
+
+    /// Numeric factorisation of `a`, which must have the pattern given to [`Cholesky::try_new`].
+    ///
+    /// # Errors
+    /// [`LinalgError::NotPositiveDefinite`] if a pivot is not positive (the previous factor is
+    /// then invalid), [`LinalgError::DimensionMismatch`] for a matrix of another size.
+    pub fn factorize(&mut self, a: &SymmetricMatrix) -> Result<(), LinalgError> {
+        self.factorized = false;
+        if a.pattern.n != self.dim() {
+            return Err(LinalgError::DimensionMismatch {
+                expected: self.dim(),
+                got: a.pattern.n,
+            });
+        }
+        let mat = SparseColMatRef::new(a.pattern.symbolic(), &a.values);
+        let stack = MemStack::new(&mut self.factor_mem);
+        let res = self.symbolic.factorize_numeric_llt::<f64>(
+            &mut self.l_values,
+            mat,
+            Side::Upper,
+            LltRegularization::default(),
+            Par::Seq,
+            stack,
+            Spec::default(),
+        );
+        match res {
+            Ok(_) => {
+                self.factorized = true;
+                Ok(())
+            }
+            Err(faer::linalg::cholesky::llt::factor::LltError::NonPositivePivot { index }) => {
+                Err(LinalgError::NotPositiveDefinite { pivot: index })
+            }
+        }
+    }
+
+    /// Solves `A x = b` in place (`rhs` holds `b` on entry, `x` on return).
+    ///
+    /// # Errors
+    /// [`LinalgError::NotFactorized`], [`LinalgError::DimensionMismatch`].
+    pub fn solve_in_place(&mut self, rhs: &mut [f64]) -> Result<(), LinalgError> {
+        self.solve_many_in_place(rhs, 1)
+    }
+
+    /// Solves `A X = B` in place for `ncols` right-hand sides stored column-major in `rhs`
+    /// (`rhs.len() == n · ncols`). Scratch grows (once) if `ncols` exceeds the size given at
+    /// construction.
+    ///
+    /// # Errors
+    /// [`LinalgError::NotFactorized`], [`LinalgError::DimensionMismatch`].
+    pub fn solve_many_in_place(
+        &mut self,
+        rhs: &mut [f64],
+        ncols: usize,
+    ) -> Result<(), LinalgError> {
+        if !self.factorized {
+            return Err(LinalgError::NotFactorized);
+        }
+        let n = self.dim();
+        if rhs.len() != n * ncols {
+            return Err(LinalgError::DimensionMismatch {
+                expected: n * ncols,
+                got: rhs.len(),
+            });
+        }
+        if ncols == 0 {
+            return Ok(());
+        }
+        if ncols > self.solve_cols {
+            self.solve_mem = MemBuffer::try_new(Self::solve_req(&self.symbolic, ncols))
+                .map_err(|_| LinalgError::Symbolic)?;
+            self.solve_cols = ncols;
+        }
+        let llt = LltRef::<'_, usize, f64>::new(&self.symbolic, &self.l_values);
+        let mat = MatMut::from_column_major_slice_mut(rhs, n, ncols);
+        llt.solve_in_place_with_conj(Conj::No, mat, Par::Seq, MemStack::new(&mut self.solve_mem));
+        Ok(())
+    }
+}
