@@ -1,0 +1,505 @@
+//! Constraint rows of one step as groups of [`Attachment`]s, and the frame they make.
+//!
+//! A row group (base χ, tip contact φ, sliding point ψ) acts on one or two points: the needle
+//! side with sign +1, the gel side with sign −1 (the gel receives the opposite force), each seen
+//! along the group's directions `D` (up to three rows per attachment). With the points' Cartesian
+//! columns ([`PointColumns`]) this gives, without any further solve,
+//!
+//! - `W_gh = Σ_{a∈g, b∈h, same model} s_a s_b D_a (P_a U_b) D_bᵀ`,
+//! - `C_oh = Σ_{b∈h, model of o} s_b A_o (P_o U_b) D_bᵀ` for each observation `o = A_o P_o x`,
+//! - the corrective motion `Δx = Σ_h Σ_{b∈h} s_b U_b D_bᵀ λ_h` (`x = x_free + K⁻¹ Hᵀ λ`).
+//!
+//! Sign conventions are those of `docs/architecture.md` (`w = W λ − δ`, positive `δ` violated).
+
+use crate::compliance::{PointColumns, PointMap};
+use nalgebra::{Matrix3, Vector3};
+use needle_core::payload::{ComplianceFrame, GroupKind, NOBS, RowGroup};
+
+/// Which model a point belongs to.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Model {
+    /// The needle (6 dofs per node: translation, world-frame rotation increment).
+    Needle,
+    /// The gel (3 dofs per free node).
+    Gel,
+}
+
+/// A point of a model with its Cartesian columns `K⁻¹ Pᵀ`, computed on demand and cached.
+#[derive(Clone, Debug)]
+pub struct StoredPoint {
+    /// The point's map from dofs.
+    pub map: PointMap,
+    /// Its columns, once computed with the current factor.
+    pub cols: Option<PointColumns>,
+}
+
+/// The points of one model that this step's rows touch.
+#[derive(Clone, Debug, Default)]
+pub struct PointStore {
+    /// The points; rows refer to them by index.
+    pub points: Vec<StoredPoint>,
+}
+
+impl PointStore {
+    /// Adds a point (columns not yet computed) and returns its index.
+    pub fn push(&mut self, map: PointMap) -> usize {
+        self.points.push(StoredPoint { map, cols: None });
+        self.points.len() - 1
+    }
+
+    /// Computes the missing columns with `solve_many(rhs, ncols)` on `n` dofs; returns how many
+    /// points needed a solve.
+    ///
+    /// # Errors
+    /// Whatever the solver returns.
+    pub fn compute_missing<E>(
+        &mut self,
+        n: usize,
+        mut solve_many: impl FnMut(&mut [f64], usize) -> Result<(), E>,
+    ) -> Result<usize, E> {
+        let mut count = 0;
+        for p in self.points.iter_mut().filter(|p| p.cols.is_none()) {
+            p.cols = Some(PointColumns::compute(&p.map, n, &mut solve_many)?);
+            count += 1;
+        }
+        Ok(count)
+    }
+
+    /// Drops every cached column (after a refactorisation).
+    pub fn invalidate(&mut self) {
+        for p in &mut self.points {
+            p.cols = None;
+        }
+    }
+
+    fn cols(&self, i: usize) -> &PointColumns {
+        // Invariant: `compute_missing` ran before any frame is filled.
+        self.points[i]
+            .cols
+            .as_ref()
+            .unwrap_or_else(|| panic!("point {i}: columns not computed"))
+    }
+}
+
+/// One model-side of a row group.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Attachment {
+    /// The model.
+    pub model: Model,
+    /// Index of the point in that model's [`PointStore`].
+    pub point: usize,
+    /// First row of the group this attachment's directions fill.
+    pub row_offset: usize,
+    /// Number of rows (1 to 3).
+    pub rows: usize,
+    /// Row directions (row `r` of `d`), world frame.
+    pub d: Matrix3<f64>,
+    /// +1 on the needle side, −1 on the gel side.
+    pub sign: f64,
+}
+
+/// What a row group models.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum GroupRole {
+    /// Needle base χ.
+    Base,
+    /// Tip on the gel surface φ (before puncture).
+    Contact,
+    /// Sliding point ψ with this identifier.
+    Sliding(usize),
+}
+
+/// A group of consecutive rows.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ConstraintGroup {
+    /// Solver kind and friction parameters, `start` filled when the frame is built.
+    pub kind: RowGroup,
+    /// What it models.
+    pub role: GroupRole,
+    /// Number of rows.
+    pub rows: usize,
+    /// Its attachments (needle and/or gel).
+    pub attachments: Vec<Attachment>,
+    /// Violation after free motion, per row [mm or rad].
+    pub delta: [f64; 6],
+}
+
+/// An observed 3-vector `o = A P x` of one model.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Observation {
+    /// The model.
+    pub model: Model,
+    /// The observed point's map.
+    pub map: PointMap,
+    /// The linear map applied to the point's displacement (identity for a position).
+    pub a: Matrix3<f64>,
+    /// Value after free motion.
+    pub free: Vector3<f64>,
+}
+
+/// All rows and observations of one step.
+#[derive(Clone, Debug, Default)]
+pub struct ConstraintSet {
+    /// Needle points.
+    pub needle: PointStore,
+    /// Gel points.
+    pub gel: PointStore,
+    /// Row groups in frame order (group 0: the base).
+    pub groups: Vec<ConstraintGroup>,
+}
+
+impl ConstraintSet {
+    fn store(&self, m: Model) -> &PointStore {
+        match m {
+            Model::Needle => &self.needle,
+            Model::Gel => &self.gel,
+        }
+    }
+
+    /// Number of rows.
+    pub fn rows(&self) -> usize {
+        self.groups.iter().map(|g| g.rows).sum()
+    }
+
+    /// First row of each group.
+    pub fn starts(&self) -> Vec<usize> {
+        let mut s = Vec::with_capacity(self.groups.len());
+        let mut r = 0;
+        for g in &self.groups {
+            s.push(r);
+            r += g.rows;
+        }
+        s
+    }
+
+    /// Writes `W`, `δ_free`, the groups, and `C`, `o_free` for `observations` (laid out by
+    /// `needle_core::payload::ObsIndex`) into `frame`. Other fields are the caller's.
+    ///
+    /// # Panics
+    /// If the rows exceed the frame's capacity or a point's columns were not computed (both are
+    /// checked by the caller, the world, before).
+    pub fn fill_frame<const M: usize>(
+        &self,
+        observations: &[Observation; NOBS / 3],
+        frame: &mut ComplianceFrame<M>,
+    ) {
+        let m = self.rows();
+        assert!(m <= M, "{m} rows exceed the frame capacity {M}");
+        let starts = self.starts();
+        frame.m = m as u32;
+        frame.group_count = self.groups.len() as u32;
+        for (k, g) in self.groups.iter().enumerate() {
+            let mut kind = g.kind;
+            kind.start = starts[k] as u32;
+            kind.len = g.rows as u32;
+            frame.groups[k] = kind;
+            frame.delta_free[starts[k]..starts[k] + g.rows].copy_from_slice(&g.delta[..g.rows]);
+        }
+        for row in frame.w.iter_mut().take(m) {
+            row[..m].fill(0.0);
+        }
+        // W: symmetric, fill block (g, h) for h ≥ g and mirror.
+        for (gi, g) in self.groups.iter().enumerate() {
+            for (hi, h) in self.groups.iter().enumerate().skip(gi) {
+                for a in &g.attachments {
+                    for b in h.attachments.iter().filter(|b| b.model == a.model) {
+                        let store = self.store(a.model);
+                        let gab = store.cols(b.point).gather(&store.points[a.point].map);
+                        let blk = a.sign * b.sign * a.d * gab * b.d.transpose();
+                        for r in 0..a.rows {
+                            for c in 0..b.rows {
+                                let (i, j) =
+                                    (starts[gi] + a.row_offset + r, starts[hi] + b.row_offset + c);
+                                frame.w[i][j] += blk[(r, c)];
+                                if gi != hi {
+                                    frame.w[j][i] += blk[(r, c)];
+                                }
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        // C and o_free.
+        for (k, o) in observations.iter().enumerate() {
+            for r in 0..3 {
+                frame.o_free[3 * k + r] = o.free[r];
+                frame.c[3 * k + r][..m].fill(0.0);
+            }
+            for (hi, h) in self.groups.iter().enumerate() {
+                for b in h.attachments.iter().filter(|b| b.model == o.model) {
+                    let gob = self.store(o.model).cols(b.point).gather(&o.map);
+                    let blk = b.sign * o.a * gob * b.d.transpose();
+                    for r in 0..3 {
+                        for c in 0..b.rows {
+                            frame.c[3 * k + r][starts[hi] + b.row_offset + c] += blk[(r, c)];
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    /// The corrective motion `K⁻¹ Hᵀ λ` of each model, added to `needle_dx` and `gel_dx`.
+    pub fn add_correction(&self, lambda: &[f64], needle_dx: &mut [f64], gel_dx: &mut [f64]) {
+        let starts = self.starts();
+        for (hi, h) in self.groups.iter().enumerate() {
+            for b in &h.attachments {
+                let mut l = Vector3::zeros();
+                for r in 0..b.rows {
+                    l[r] = lambda[starts[hi] + b.row_offset + r];
+                }
+                let f = b.sign * b.d.transpose() * l;
+                let (store, out) = match b.model {
+                    Model::Needle => (&self.needle, &mut *needle_dx),
+                    Model::Gel => (&self.gel, &mut *gel_dx),
+                };
+                store.cols(b.point).add_response(&f, out);
+            }
+        }
+    }
+}
+
+/// `Kind::X as u32` for building row groups.
+pub fn group(kind: GroupKind, mu: f64, r0: f64) -> RowGroup {
+    RowGroup {
+        kind: kind as u32,
+        start: 0,
+        len: 0,
+        reserved: 0,
+        mu,
+        r0,
+    }
+}
+
+/// Two unit vectors completing `t` (unit) into a right-handed orthonormal frame, chosen
+/// continuously: the first is `t × a` for the world axis `a` least aligned with `t`.
+pub fn orthonormal_pair(t: &Vector3<f64>) -> (Vector3<f64>, Vector3<f64>) {
+    let a = if t.x.abs() <= t.y.abs() && t.x.abs() <= t.z.abs() {
+        Vector3::x()
+    } else if t.y.abs() <= t.z.abs() {
+        Vector3::y()
+    } else {
+        Vector3::z()
+    };
+    let u = t.cross(&a).normalize();
+    let v = t.cross(&u);
+    (u, v)
+}
+
+/// The skew matrix `[v]×` with `[v]× x = v × x`.
+pub fn skew(v: &Vector3<f64>) -> Matrix3<f64> {
+    Matrix3::new(0.0, -v.z, v.y, v.z, 0.0, -v.x, -v.y, v.x, 0.0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{DMatrix, DVector};
+
+    fn spd(n: usize, seed: usize) -> DMatrix<f64> {
+        let a = DMatrix::from_fn(n, n, |i, j| {
+            (((i + seed) * 7 + j * 13) % 11) as f64 / 11.0 - 0.4
+        });
+        &a * a.transpose() + DMatrix::identity(n, n) * n as f64
+    }
+
+    fn dense_p(m: &PointMap, n: usize) -> DMatrix<f64> {
+        let mut d = DMatrix::zeros(3, n);
+        for &(b, w) in m.used() {
+            for r in 0..3 {
+                d[(r, b + r)] += w;
+            }
+        }
+        d
+    }
+
+    /// The frame's W, C and the correction equal the dense `H K⁻¹ Hᵀ` algebra.
+    #[test]
+    fn frame_blocks_match_dense_algebra() {
+        let (nn, nv) = (12, 18);
+        let (kn, kv) = (spd(nn, 1), spd(nv, 2));
+        let (kni, kvi) = (
+            kn.clone().try_inverse().unwrap(),
+            kv.clone().try_inverse().unwrap(),
+        );
+        let mut set = ConstraintSet::default();
+        let base_t = set.needle.push(PointMap::single(0));
+        let base_r = set.needle.push(PointMap::single(3));
+        let tip = set
+            .needle
+            .push(PointMap::weighted([(Some(6), 0.25), (Some(9), 0.75)]));
+        let gp = set.gel.push(PointMap::weighted([
+            (Some(0), 0.1),
+            (Some(6), 0.2),
+            (Some(12), 0.3),
+            (Some(15), 0.4),
+        ]));
+        let eye = Matrix3::identity();
+        set.groups.push(ConstraintGroup {
+            kind: group(GroupKind::Bilateral, 0.0, 0.0),
+            role: GroupRole::Base,
+            rows: 6,
+            attachments: vec![
+                Attachment {
+                    model: Model::Needle,
+                    point: base_t,
+                    row_offset: 0,
+                    rows: 3,
+                    d: eye,
+                    sign: 1.0,
+                },
+                Attachment {
+                    model: Model::Needle,
+                    point: base_r,
+                    row_offset: 3,
+                    rows: 3,
+                    d: eye,
+                    sign: 1.0,
+                },
+            ],
+            delta: [0.1, 0.2, 0.3, 0.4, 0.5, 0.6],
+        });
+        let t = Vector3::new(0.3, -0.2, 0.9).normalize();
+        let (u, v) = orthonormal_pair(&t);
+        let d = Matrix3::from_rows(&[u.transpose(), v.transpose(), t.transpose()]);
+        set.groups.push(ConstraintGroup {
+            kind: group(GroupKind::Sliding, 0.1, 0.0),
+            role: GroupRole::Sliding(0),
+            rows: 3,
+            attachments: vec![
+                Attachment {
+                    model: Model::Needle,
+                    point: tip,
+                    row_offset: 0,
+                    rows: 3,
+                    d,
+                    sign: 1.0,
+                },
+                Attachment {
+                    model: Model::Gel,
+                    point: gp,
+                    row_offset: 0,
+                    rows: 3,
+                    d,
+                    sign: -1.0,
+                },
+            ],
+            delta: [0.0; 6],
+        });
+        let solve = |ki: &DMatrix<f64>, n: usize| {
+            let ki = ki.clone();
+            move |rhs: &mut [f64], cols: usize| -> Result<(), ()> {
+                for c in 0..cols {
+                    let b = DVector::from_column_slice(&rhs[c * n..(c + 1) * n]);
+                    rhs[c * n..(c + 1) * n].copy_from_slice((&ki * b).as_slice());
+                }
+                Ok(())
+            }
+        };
+        set.needle.compute_missing(nn, solve(&kni, nn)).unwrap();
+        set.gel.compute_missing(nv, solve(&kvi, nv)).unwrap();
+
+        // Dense H.
+        let m = set.rows();
+        let mut hn = DMatrix::zeros(m, nn);
+        let mut hv = DMatrix::zeros(m, nv);
+        let starts = set.starts();
+        for (gi, g) in set.groups.iter().enumerate() {
+            for a in &g.attachments {
+                let (store, h, n) = match a.model {
+                    Model::Needle => (&set.needle, &mut hn, nn),
+                    Model::Gel => (&set.gel, &mut hv, nv),
+                };
+                let blk = a.sign * a.d * dense_p(&store.points[a.point].map, n);
+                for r in 0..a.rows {
+                    for c in 0..n {
+                        h[(starts[gi] + a.row_offset + r, c)] += blk[(r, c)];
+                    }
+                }
+            }
+        }
+        let w_dense = &hn * &kni * hn.transpose() + &hv * &kvi * hv.transpose();
+
+        let tip_dir = Vector3::new(0.0, 0.0, 1.0);
+        let obs = [
+            Observation {
+                model: Model::Needle,
+                map: set.needle.points[tip].map,
+                a: eye,
+                free: Vector3::x(),
+            },
+            Observation {
+                model: Model::Needle,
+                map: PointMap::single(9),
+                a: -skew(&tip_dir),
+                free: tip_dir,
+            },
+            Observation {
+                model: Model::Gel,
+                map: PointMap::single(3),
+                a: eye,
+                free: Vector3::y(),
+            },
+            Observation {
+                model: Model::Gel,
+                map: PointMap::single(6),
+                a: eye,
+                free: Vector3::z(),
+            },
+            Observation {
+                model: Model::Gel,
+                map: PointMap::weighted([(Some(9), 0.5), (Some(12), 0.5)]),
+                a: eye,
+                free: Vector3::zeros(),
+            },
+        ];
+        let mut frame = Box::new(std::mem::MaybeUninit::<ComplianceFrame<16>>::uninit());
+        let frame = ComplianceFrame::init_in_place(&mut frame);
+        set.fill_frame(&obs, frame);
+        assert_eq!(frame.m as usize, m);
+        for i in 0..m {
+            for j in 0..m {
+                assert!(
+                    (frame.w[i][j] - w_dense[(i, j)]).abs() < 1e-13,
+                    "W[{i}][{j}]"
+                );
+            }
+        }
+        for (k, o) in obs.iter().enumerate() {
+            let (h, ki, n) = match o.model {
+                Model::Needle => (&hn, &kni, nn),
+                Model::Gel => (&hv, &kvi, nv),
+            };
+            let c = o.a * dense_p(&o.map, n) * ki * h.transpose();
+            for r in 0..3 {
+                for j in 0..m {
+                    assert!(
+                        (frame.c[3 * k + r][j] - c[(r, j)]).abs() < 1e-13,
+                        "C obs {k} row {r} col {j}"
+                    );
+                }
+            }
+        }
+        let lambda: Vec<f64> = (0..m).map(|i| 0.1 * i as f64 - 0.3).collect();
+        let (mut dxn, mut dxv) = (vec![0.0; nn], vec![0.0; nv]);
+        set.add_correction(&lambda, &mut dxn, &mut dxv);
+        let l = DVector::from_vec(lambda);
+        assert!((DVector::from_vec(dxn) - &kni * hn.transpose() * &l).norm() < 1e-13);
+        assert!((DVector::from_vec(dxv) - &kvi * hv.transpose() * &l).norm() < 1e-13);
+    }
+
+    #[test]
+    fn orthonormal_pair_is_right_handed() {
+        for t in [
+            Vector3::z(),
+            -Vector3::z(),
+            Vector3::new(0.3, -0.2, 0.9).normalize(),
+            Vector3::x(),
+        ] {
+            let (u, v) = orthonormal_pair(&t);
+            assert!(u.dot(&t).abs() < 1e-15 && v.dot(&t).abs() < 1e-15 && u.dot(&v).abs() < 1e-15);
+            assert!((u.cross(&v) - t).norm() < 1e-15);
+        }
+    }
+}
