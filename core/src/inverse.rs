@@ -471,6 +471,39 @@ fn smallest_eigenvalue(a: &Matrix4<f64>) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::synthetic::rigid_needle_frame;
+    use std::boxed::Box;
+    use std::mem::MaybeUninit;
+
+    #[test]
+    fn rigid_needle_newton_converges() {
+        let chain = DhChain::rv1a();
+        let mut fm = Box::new(MaybeUninit::<ComplianceFrame<12>>::uninit());
+        let frame = ComplianceFrame::init_in_place(&mut fm);
+        let mut cm = Box::new(MaybeUninit::<Command<12>>::uninit());
+        let cmd = Command::init_in_place(&mut cm);
+        let q_target = [0.2, 0.35, 2.0, 0.1, 0.6, -0.2];
+        let q_free = [0.25, 0.3, 2.05, 0.05, 0.55, -0.25];
+        rigid_needle_frame(frame, &chain, &q_free, &q_target, 120.0);
+        let mut ctrl = Controller::<12>::new(chain, InverseParams::default());
+        let mut q = q_free;
+        let mut last = f64::INFINITY;
+        for _ in 0..8 {
+            frame.q = q;
+            let rep = ctrl.step(frame, cmd).expect("valid");
+            let n = Vector4::from(rep.objective).norm();
+            std::println!(
+                "{:?} |T| {n:e} flags {:#x} sweeps {}",
+                rep.objective,
+                rep.flags,
+                rep.iterations
+            );
+            assert!(n <= last);
+            last = n;
+            q = cmd.q;
+        }
+        assert!(last < 1e-2);
+    }
 
     #[test]
     fn blend_follows_the_text() {

@@ -12,6 +12,7 @@ pub mod inverse;
 pub mod kinematics;
 mod math;
 pub mod payload;
+pub mod synthetic;
 
 pub use constraint::{BlockGs, GsParams, SolveReport};
 pub use ik::{IkError, IkParams, IkReport, solve_ik};

@@ -1,0 +1,218 @@
+//! Synthetic compliance frames with known structure, for tests, benches and examples (no
+//! allocation: they write into a frame you own).
+//!
+//! * [`rigid_needle_frame`]: only the 6 base rows; a rigid needle of length `L` hangs on a
+//!   linear spring at the base, so the tip follows the base through a known linear map and the
+//!   target (taken from joints `q_target`) is exactly reachable.
+//! * [`random_frame`]: a seeded random SPD compliance with the production layout (6 base rows, an
+//!   optional tip contact, sliding points), random violations and observation rows.
+
+use crate::kinematics::{DhChain, Pose};
+use crate::payload::{BASE_ROWS, ComplianceFrame, JOINTS, NOBS, ObsIndex, RowGroup, VERSION};
+use nalgebra::{Matrix3, Vector3};
+
+/// A small counter-based random generator (SplitMix64); deterministic for a seed.
+#[derive(Clone, Copy, Debug)]
+pub struct Rng(pub u64);
+
+impl Rng {
+    /// Next 64 random bits.
+    pub fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        mix(self.0)
+    }
+
+    /// Uniform in `[0, 1)`.
+    pub fn uniform(&mut self) -> f64 {
+        (self.next_u64() >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
+    }
+
+    /// Uniform in `[lo, hi)`.
+    pub fn range(&mut self, lo: f64, hi: f64) -> f64 {
+        lo + (hi - lo) * self.uniform()
+    }
+}
+
+fn mix(mut z: u64) -> u64 {
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
+}
+
+/// Deterministic value in `[-1, 1)` for `(seed, i, k)`.
+fn hash_unit(seed: u64, i: usize, k: usize) -> f64 {
+    let z = mix(seed ^ mix((i as u64) << 32 ^ k as u64));
+    (z >> 11) as f64 * (2.0 / (1u64 << 53) as f64) - 1.0
+}
+
+fn skew(v: &Vector3<f64>) -> Matrix3<f64> {
+    Matrix3::new(0.0, -v[2], v[1], v[2], 0.0, -v[0], -v[1], v[0], 0.0)
+}
+
+fn write_rotation(dst: &mut [[f64; 3]; 3], r: &Matrix3<f64>) {
+    for (i, row) in dst.iter_mut().enumerate() {
+        for (j, x) in row.iter_mut().enumerate() {
+            *x = r[(i, j)];
+        }
+    }
+}
+
+/// Model tip and tip direction of the rigid-needle frame for a base pose `b`.
+fn rigid_tip(free: &Pose, b: &Pose, length: f64) -> (Vector3<f64>, Vector3<f64>) {
+    let z = free.z_axis();
+    let u_p = b.translation - free.translation;
+    let u_r = crate::math::rotation_log(&(b.rotation * free.rotation.transpose()));
+    (
+        free.translation + u_p + z * length + u_r.cross(&(z * length)),
+        z + u_r.cross(&z),
+    )
+}
+
+/// Fills `frame` with the rigid-needle model: 6 bilateral base rows with compliance
+/// `W = diag(c_t I, c_r I)` [mm/N, rad/(N·mm)], the needle base resting (free motion) at
+/// `B(q_free)`, a rigid needle of `length` [mm] along the base z axis, so that
+/// `tip = p_free + u_p + L z + u_r × L z` with `(u_p, u_r) = W λ` — linear in `λ`. The target is
+/// this model's tip at `q_target` and the tangent its direction there; the entry point is the
+/// target. `frame.q = q_free`, `dt` = 1 s, not inserted.
+pub fn rigid_needle_frame<const M: usize>(
+    frame: &mut ComplianceFrame<M>,
+    chain: &DhChain<JOINTS>,
+    q_free: &[f64; JOINTS],
+    q_target: &[f64; JOINTS],
+    length: f64,
+) {
+    frame.reset();
+    let (ct, cr) = (1e-3, 1e-5);
+    frame.m = BASE_ROWS as u32;
+    frame.group_count = 1;
+    frame.groups[0] = RowGroup::bilateral(0, BASE_ROWS as u32);
+    for i in 0..BASE_ROWS {
+        frame.w[i][i] = if i < 3 { ct } else { cr };
+    }
+    let free = chain.tool_pose(q_free);
+    frame.p_free = free.translation.into();
+    write_rotation(&mut frame.r_free, &free.rotation);
+    let d = crate::inverse::base_violation(&free, &frame.p_free, &frame.r_free);
+    frame.delta_free[..BASE_ROWS].copy_from_slice(&d);
+    let z = free.z_axis();
+    // o_tip = p_free + L z + [I, −[L z]×] u,  o_dir = z + [0, −[z]×] u,  u = W λ.
+    let a_tip = -skew(&(z * length));
+    let a_dir = -skew(&z);
+    for r in 0..3 {
+        frame.o_free[ObsIndex::TIP_POSITION + r] = free.translation[r] + length * z[r];
+        frame.o_free[ObsIndex::TIP_DIRECTION + r] = z[r];
+        frame.c[ObsIndex::TIP_POSITION + r][r] = ct;
+        for c in 0..3 {
+            frame.c[ObsIndex::TIP_POSITION + r][3 + c] = a_tip[(r, c)] * cr;
+            frame.c[ObsIndex::TIP_DIRECTION + r][3 + c] = a_dir[(r, c)] * cr;
+        }
+    }
+    let (tip, dir) = rigid_tip(&free, &chain.tool_pose(q_target), length);
+    let dir = dir.normalize();
+    for r in 0..3 {
+        frame.o_free[ObsIndex::TARGET_POINT + r] = tip[r];
+        frame.o_free[ObsIndex::TARGET_TANGENT + r] = dir[r];
+        frame.o_free[ObsIndex::ENTRY_POINT + r] = tip[r];
+    }
+    frame.q = *q_free;
+    frame.dt = 1.0;
+    frame.version = VERSION;
+}
+
+/// Fills `frame` with a seeded random problem of `m` rows (`m` clamped to `6..=M`, rounded down
+/// to 6 + a multiple of 3) in the production layout: 6 bilateral base rows, then (when
+/// `with_contact`) one tip contact `[n, t1, t2]`, then sliding points. `W = A Aᵀ / k + α I`
+/// with random `A` (`k = m + 8` columns), scaled so that base rows are stiffer than gel rows;
+/// random violations and observation rows; the needle base rests near `B(q)`.
+pub fn random_frame<const M: usize>(
+    frame: &mut ComplianceFrame<M>,
+    chain: &DhChain<JOINTS>,
+    q: &[f64; JOINTS],
+    m: usize,
+    seed: u64,
+    with_contact: bool,
+) {
+    frame.reset();
+    let mut rng = Rng(seed);
+    let m = m.clamp(BASE_ROWS, M.max(BASE_ROWS));
+    let m = BASE_ROWS + (m - BASE_ROWS) / 3 * 3;
+    let m = m.min(M);
+    frame.m = m as u32;
+    // Groups.
+    let mut g = 0;
+    frame.groups[g] = RowGroup::bilateral(0, BASE_ROWS as u32);
+    g += 1;
+    let mut row = BASE_ROWS;
+    if with_contact && row + 3 <= m {
+        frame.groups[g] = RowGroup::contact(row as u32, rng.range(0.1, 0.5));
+        g += 1;
+        row += 3;
+    }
+    while row + 3 <= m {
+        frame.groups[g] = RowGroup::sliding(row as u32, rng.range(0.05, 0.3), rng.range(0.0, 0.05));
+        g += 1;
+        row += 3;
+    }
+    frame.group_count = g as u32;
+    // W = S (A Aᵀ / k + α I) S, row scales S: base rows 0.03, gel rows 1 → compliance ~1e-3…1.
+    let k = m + 8;
+    let scale = |i: usize| if i < BASE_ROWS { 0.03 } else { 1.0 };
+    let wseed = rng.next_u64();
+    for i in 0..m {
+        for j in 0..=i {
+            let mut s = 0.0;
+            for c in 0..k {
+                s += hash_unit(wseed, i, c) * hash_unit(wseed, j, c);
+            }
+            let mut v = s / k as f64;
+            if i == j {
+                v += 0.05;
+            }
+            v *= scale(i) * scale(j);
+            frame.w[i][j] = v;
+            frame.w[j][i] = v;
+        }
+    }
+    // Free motion: base rests near B(q).
+    let b = chain.tool_pose(q);
+    let off = Vector3::new(
+        rng.range(-1.0, 1.0),
+        rng.range(-1.0, 1.0),
+        rng.range(-1.0, 1.0),
+    );
+    frame.p_free = (b.translation + off).into();
+    let rot = nalgebra::Rotation3::from_scaled_axis(Vector3::new(
+        rng.range(-0.02, 0.02),
+        rng.range(-0.02, 0.02),
+        rng.range(-0.02, 0.02),
+    ));
+    write_rotation(&mut frame.r_free, &(rot.matrix() * b.rotation));
+    let d = crate::inverse::base_violation(&b, &frame.p_free, &frame.r_free);
+    frame.delta_free[..BASE_ROWS].copy_from_slice(&d);
+    for i in BASE_ROWS..m {
+        frame.delta_free[i] = rng.range(-0.5, 0.5);
+    }
+    // Observations: tip 100 mm below the base, target a few mm away.
+    let z = b.z_axis();
+    for r in 0..3 {
+        let tip = b.translation[r] + 100.0 * z[r];
+        frame.o_free[ObsIndex::TIP_POSITION + r] = tip;
+        frame.o_free[ObsIndex::TIP_DIRECTION + r] = z[r];
+        frame.o_free[ObsIndex::TARGET_POINT + r] = tip + rng.range(-3.0, 3.0);
+        frame.o_free[ObsIndex::TARGET_TANGENT + r] = z[r] + rng.range(-0.1, 0.1);
+        frame.o_free[ObsIndex::ENTRY_POINT + r] = tip - 20.0 * z[r];
+    }
+    let cseed = rng.next_u64();
+    for r in 0..NOBS {
+        for c in 0..m {
+            let base = if r < 6 { 1.0 } else { 0.05 };
+            frame.c[r][c] = base * 0.01 * hash_unit(cseed, r, c) * scale(c);
+        }
+    }
+    frame.inserted = 1;
+    frame.insertion_depth = rng.range(0.0, 30.0);
+    frame.q = *q;
+    frame.dt = 0.01;
+    frame.sequence = seed;
+    frame.version = VERSION;
+}

@@ -1,0 +1,157 @@
+//! `needle_core::constraint::BlockGs` against `lcp_ref.json` (OSQP / SciPy NNLS / Clarabel
+//! references): every frictionless problem (rows as single unilateral groups, as the reference
+//! does) and every friction problem (3-row Coulomb contacts `[n, t1, t2]`).
+
+use needle_core::constraint::{BlockGs, GsParams};
+use needle_core::payload::RowGroup;
+use needle_tests::load_ref;
+use serde_json::Value;
+use std::mem::MaybeUninit;
+
+const M: usize = 150;
+
+fn arr(v: &Value) -> Vec<f64> {
+    v.as_array()
+        .expect("array")
+        .iter()
+        .map(|x| x.as_f64().expect("number"))
+        .collect()
+}
+
+struct Problem {
+    n: usize,
+    w: Box<[[f64; M]; M]>,
+    delta: [f64; M],
+}
+
+fn load_problem(p: &Value) -> Problem {
+    let n = p["n"].as_u64().expect("n") as usize;
+    assert!(n <= M);
+    // Box the 180 KB matrix without a stack temporary.
+    let mut w: Box<MaybeUninit<[[f64; M]; M]>> = Box::new_uninit();
+    // SAFETY: an all-zero bit pattern is a valid array of f64.
+    let mut w = unsafe {
+        std::ptr::write_bytes(w.as_mut_ptr(), 0, 1);
+        w.assume_init()
+    };
+    for (i, row) in p["W"].as_array().expect("W").iter().enumerate() {
+        for (j, x) in arr(row).into_iter().enumerate() {
+            w[i][j] = x;
+        }
+    }
+    let mut delta = [0.0; M];
+    for (i, x) in arr(&p["delta"]).into_iter().enumerate() {
+        delta[i] = x;
+    }
+    Problem { n, w, delta }
+}
+
+fn rel_err(a: &[f64], b: &[f64]) -> f64 {
+    let scale = b.iter().fold(0.0f64, |m, x| m.max(x.abs()));
+    a.iter()
+        .zip(b)
+        .fold(0.0f64, |m, (x, y)| m.max((x - y).abs()))
+        / scale
+}
+
+#[test]
+fn frictionless_problems_match_reference() {
+    let r = load_ref("lcp_ref.json");
+    let problems = r["problems"].as_array().expect("problems");
+    assert_eq!(problems.len(), 30);
+    let mut gs = Box::new(BlockGs::<M>::new());
+    let mut worst = 0.0f64;
+    for p in problems {
+        let id = p["id"].as_u64().expect("id");
+        let pb = load_problem(p);
+        let groups: Vec<RowGroup> = (0..pb.n as u32).map(RowGroup::unilateral).collect();
+        gs.prepare(&pb.w, pb.n, &groups).expect("valid problem");
+        let mut lambda = [0.0; M];
+        let params = GsParams {
+            tolerance: 1e-12,
+            max_iterations: 5000,
+            polish: true,
+        };
+        let rep = gs.solve(&pb.w, &pb.delta, &mut lambda, &params);
+        let lref = arr(&p["frictionless"]["lambda"]);
+        let e = rel_err(&lambda[..pb.n], &lref);
+        worst = worst.max(e);
+        println!(
+            "problem {id:2} n={:3} cond={:9.1}: sweeps {:5} polished {} rel err {e:.2e}",
+            pb.n,
+            p["cond_W"].as_f64().unwrap_or(0.0),
+            rep.iterations,
+            rep.polished
+        );
+        assert!(rep.converged, "problem {id}: {rep:?}");
+        assert!(e <= 1e-8, "problem {id}: λ relative error {e:e}");
+        assert!(lambda[..pb.n].iter().all(|&x| x >= 0.0));
+    }
+    println!("worst relative error {worst:.2e}");
+}
+
+#[test]
+fn friction_problems_match_reference() {
+    let r = load_ref("lcp_ref.json");
+    let ids: Vec<u64> = r["friction_problem_ids"]
+        .as_array()
+        .expect("ids")
+        .iter()
+        .map(|v| v.as_u64().expect("id"))
+        .collect();
+    assert_eq!(ids.len(), 8);
+    let mut gs = Box::new(BlockGs::<M>::new());
+    for p in r["problems"].as_array().expect("problems") {
+        let id = p["id"].as_u64().expect("id");
+        let f = &p["friction"];
+        if f.is_null() {
+            assert!(!ids.contains(&id));
+            continue;
+        }
+        let pb = load_problem(p);
+        let mu = f["mu"].as_f64().expect("mu");
+        let groups: Vec<RowGroup> = (0..pb.n as u32 / 3)
+            .map(|c| RowGroup::contact(3 * c, mu))
+            .collect();
+        gs.prepare(&pb.w, pb.n, &groups).expect("valid problem");
+        let mut lambda = [0.0; M];
+        let params = GsParams {
+            tolerance: 1e-14,
+            max_iterations: 20000,
+            polish: false,
+        };
+        let rep = gs.solve(&pb.w, &pb.delta, &mut lambda, &params);
+        let rref = arr(&f["r"]);
+        let e = rel_err(&lambda[..pb.n], &rref);
+        println!(
+            "friction problem {id:2} n={:3} mu={mu:.3}: sweeps {:5} residual {:.1e} rel err {e:.2e}",
+            pb.n, rep.iterations, rep.residual
+        );
+        assert!(e <= 1e-6, "problem {id}: r relative error {e:e}");
+        // Status per contact, classified from our own solution.
+        let w = gs.last_residual();
+        let scale = rref.iter().fold(0.0f64, |m, x| m.max(x.abs()));
+        for (c, st) in f["contact_status"]
+            .as_array()
+            .expect("status")
+            .iter()
+            .enumerate()
+        {
+            let (rn, t1, t2) = (lambda[3 * c], lambda[3 * c + 1], lambda[3 * c + 2]);
+            let ours = if rn <= 1e-9 * scale {
+                "separated"
+            } else if (t1.hypot(t2) - mu * rn).abs() <= 1e-7 * scale
+                && w[3 * c + 1].hypot(w[3 * c + 2]) > 1e-12
+            {
+                "slide"
+            } else {
+                "stick"
+            };
+            assert_eq!(
+                ours,
+                st.as_str().expect("status"),
+                "problem {id} contact {c}: r = ({rn}, {t1}, {t2})"
+            );
+        }
+    }
+}

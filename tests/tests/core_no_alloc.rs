@@ -1,0 +1,73 @@
+//! The whole inverse step allocates nothing: a counting global allocator (thread-local counter,
+//! so other test threads do not interfere) around `Controller::step`, after a warm-up.
+
+use needle_core::synthetic::random_frame;
+use needle_core::{Command, ComplianceFrame, Controller, DhChain, InverseParams};
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::cell::Cell;
+use std::mem::MaybeUninit;
+
+struct Counting;
+
+thread_local! {
+    static ALLOCATIONS: Cell<u64> = const { Cell::new(0) };
+}
+
+// SAFETY: forwards to `System`, only counting calls.
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        let _ = ALLOCATIONS.try_with(|c| c.set(c.get() + 1));
+        // SAFETY: same contract as the caller's.
+        unsafe { System.alloc(layout) }
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        // SAFETY: same contract as the caller's.
+        unsafe { System.dealloc(ptr, layout) }
+    }
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        let _ = ALLOCATIONS.try_with(|c| c.set(c.get() + 1));
+        // SAFETY: same contract as the caller's.
+        unsafe { System.realloc(ptr, layout, new_size) }
+    }
+}
+
+#[global_allocator]
+static GLOBAL: Counting = Counting;
+
+fn allocations() -> u64 {
+    ALLOCATIONS.with(Cell::get)
+}
+
+const M: usize = 120;
+
+#[test]
+fn inverse_step_allocates_nothing() {
+    let mut fm = Box::new(MaybeUninit::<ComplianceFrame<M>>::uninit());
+    let frame = ComplianceFrame::init_in_place(&mut fm);
+    let mut cm = Box::new(MaybeUninit::<Command<M>>::uninit());
+    let cmd = Command::init_in_place(&mut cm);
+    let chain = DhChain::rv1a();
+    let q = [0.1, 0.3, 2.0, 0.0, 0.5, 0.0];
+    let mut ctrl = Box::new(Controller::<M>::new(chain, InverseParams::default()));
+    random_frame(frame, &chain, &q, M, 42, false);
+    // Warm up (lazy statics, first-touch of anything).
+    ctrl.step(frame, cmd).expect("valid frame");
+    let mut total = 0;
+    for seed in 0..5 {
+        random_frame(frame, &chain, &q, M, seed, seed % 2 == 0);
+        let before = allocations();
+        let rep = ctrl.step(frame, cmd).expect("valid frame");
+        total += allocations() - before;
+        assert_eq!(rep.solves, 8);
+    }
+    // Sanity check that the counter counts.
+    let before = allocations();
+    let v = std::hint::black_box(vec![1u8; 16]);
+    drop(v);
+    assert_eq!(
+        allocations() - before,
+        1,
+        "the counting allocator must see allocations"
+    );
+    assert_eq!(total, 0, "Controller::step allocated");
+}

@@ -1,0 +1,242 @@
+//! Property tests: random and hostile frames never panic the core — they are rejected with an
+//! error — and valid random SPD frames solve to finite forces.
+
+use needle_core::constraint::{BlockGs, GsParams};
+use needle_core::payload::{GroupKind, RowGroup, ValidationError};
+use needle_core::synthetic::random_frame;
+use needle_core::{Command, ComplianceFrame, Controller, DhChain, InverseParams};
+use proptest::prelude::*;
+use std::mem::MaybeUninit;
+
+const M: usize = 30;
+
+fn boxed_frame() -> Box<ComplianceFrame<M>> {
+    let mut b = Box::new(MaybeUninit::<ComplianceFrame<M>>::uninit());
+    ComplianceFrame::init_in_place(&mut b);
+    // SAFETY: initialised by `init_in_place`.
+    unsafe { b.assume_init() }
+}
+
+fn boxed_command() -> Box<Command<M>> {
+    let mut b = Box::new(MaybeUninit::<Command<M>>::uninit());
+    Command::init_in_place(&mut b);
+    // SAFETY: initialised by `init_in_place`.
+    unsafe { b.assume_init() }
+}
+
+const Q: [f64; 6] = [0.1, 0.3, 2.0, 0.0, 0.5, 0.0];
+
+fn hostile_f64() -> impl Strategy<Value = f64> {
+    prop_oneof![
+        Just(f64::NAN),
+        Just(f64::INFINITY),
+        Just(f64::NEG_INFINITY),
+        Just(0.0),
+        Just(-1.0),
+        Just(1e308),
+        Just(-1e-308),
+        any::<f64>(),
+    ]
+}
+
+/// One corruption of a valid frame.
+#[derive(Clone, Debug)]
+enum Corruption {
+    Version(u32),
+    Rows(u32),
+    GroupCount(u32),
+    GroupKind(usize, u32),
+    GroupStart(usize, u32),
+    GroupLen(usize, u32),
+    Mu(usize, f64),
+    R0(usize, f64),
+    W(usize, usize, f64),
+    Delta(usize, f64),
+    PFree(usize, f64),
+    RFree(usize, usize, f64),
+    OFree(usize, f64),
+    C(usize, usize, f64),
+    Depth(f64),
+    Q(usize, f64),
+    Dt(f64),
+}
+
+fn corruption() -> impl Strategy<Value = Corruption> {
+    prop_oneof![
+        any::<u32>().prop_map(Corruption::Version),
+        any::<u32>().prop_map(Corruption::Rows),
+        any::<u32>().prop_map(Corruption::GroupCount),
+        (0..M, any::<u32>()).prop_map(|(g, k)| Corruption::GroupKind(g, k)),
+        (0..M, any::<u32>()).prop_map(|(g, k)| Corruption::GroupStart(g, k)),
+        (0..M, any::<u32>()).prop_map(|(g, k)| Corruption::GroupLen(g, k)),
+        (0..M, hostile_f64()).prop_map(|(g, v)| Corruption::Mu(g, v)),
+        (0..M, hostile_f64()).prop_map(|(g, v)| Corruption::R0(g, v)),
+        (0..M, 0..M, hostile_f64()).prop_map(|(i, j, v)| Corruption::W(i, j, v)),
+        (0..M, hostile_f64()).prop_map(|(i, v)| Corruption::Delta(i, v)),
+        (0..3usize, hostile_f64()).prop_map(|(i, v)| Corruption::PFree(i, v)),
+        (0..3usize, 0..3usize, hostile_f64()).prop_map(|(i, j, v)| Corruption::RFree(i, j, v)),
+        (0..15usize, hostile_f64()).prop_map(|(i, v)| Corruption::OFree(i, v)),
+        (0..15usize, 0..M, hostile_f64()).prop_map(|(i, j, v)| Corruption::C(i, j, v)),
+        hostile_f64().prop_map(Corruption::Depth),
+        (0..6usize, hostile_f64()).prop_map(|(i, v)| Corruption::Q(i, v)),
+        hostile_f64().prop_map(Corruption::Dt),
+    ]
+}
+
+fn apply(f: &mut ComplianceFrame<M>, c: &Corruption) {
+    match *c {
+        Corruption::Version(v) => f.version = v,
+        Corruption::Rows(v) => f.m = v,
+        Corruption::GroupCount(v) => f.group_count = v,
+        Corruption::GroupKind(g, v) => f.groups[g].kind = v,
+        Corruption::GroupStart(g, v) => f.groups[g].start = v,
+        Corruption::GroupLen(g, v) => f.groups[g].len = v,
+        Corruption::Mu(g, v) => f.groups[g].mu = v,
+        Corruption::R0(g, v) => f.groups[g].r0 = v,
+        Corruption::W(i, j, v) => f.w[i][j] = v,
+        Corruption::Delta(i, v) => f.delta_free[i] = v,
+        Corruption::PFree(i, v) => f.p_free[i] = v,
+        Corruption::RFree(i, j, v) => f.r_free[i][j] = v,
+        Corruption::OFree(i, v) => f.o_free[i] = v,
+        Corruption::C(i, j, v) => f.c[i][j] = v,
+        Corruption::Depth(v) => f.insertion_depth = v,
+        Corruption::Q(i, v) => f.q[i] = v,
+        Corruption::Dt(v) => f.dt = v,
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 400, ..ProptestConfig::default() })]
+
+    /// A valid frame with up to three corruptions: the step either succeeds with finite output
+    /// or returns an error; it never panics.
+    #[test]
+    fn corrupted_frames_never_panic(seed in any::<u64>(), m in 6usize..=M, contact in any::<bool>(),
+                                    cs in proptest::collection::vec(corruption(), 1..4)) {
+        let mut frame = boxed_frame();
+        let mut cmd = boxed_command();
+        random_frame(&mut frame, &DhChain::rv1a(), &Q, m, seed, contact);
+        for c in &cs {
+            apply(&mut frame, c);
+        }
+        let mut ctrl = Controller::<M>::new(DhChain::rv1a(), InverseParams::default());
+        let before = cmd.q;
+        match ctrl.step(&frame, &mut cmd) {
+            Ok(_) => {
+                prop_assert!(frame.validate().is_ok());
+                prop_assert!(cmd.q.iter().all(|x| x.is_finite()));
+                prop_assert!(cmd.lambda[..frame.m as usize].iter().all(|x| x.is_finite()));
+            }
+            Err(e) => {
+                prop_assert!(frame.validate().is_err() || matches!(e, needle_core::StepError::NonFinite { .. }));
+                prop_assert_eq!(cmd.q, before, "command untouched on error");
+                let _ = format!("{e}");
+            }
+        }
+    }
+
+    /// Arbitrary bytes in the header and group table of an otherwise zero frame.
+    #[test]
+    fn garbage_headers_are_rejected(version in any::<u32>(), m in any::<u32>(), count in any::<u32>(),
+                                    groups in proptest::collection::vec((any::<u32>(), any::<u32>(), any::<u32>(), hostile_f64(), hostile_f64()), 0..8)) {
+        let mut frame = boxed_frame();
+        frame.version = version;
+        frame.m = m;
+        frame.group_count = count;
+        for (i, &(kind, start, len, mu, r0)) in groups.iter().enumerate() {
+            frame.groups[i] = RowGroup { kind, start, len, reserved: 0, mu, r0 };
+        }
+        let mut ctrl = Controller::<M>::new(DhChain::rv1a(), InverseParams::default());
+        let mut cmd = boxed_command();
+        // Zero W has a zero diagonal, so nothing here can be valid.
+        prop_assert!(ctrl.step(&frame, &mut cmd).is_err());
+    }
+
+    /// Valid random SPD problems (any mix of group kinds, any warm start) solve to finite λ that
+    /// satisfy the group laws.
+    #[test]
+    fn random_spd_problems_solve_finite(seed in any::<u64>(), m in 6usize..=M, contact in any::<bool>(),
+                                        warm in proptest::collection::vec(-1e3f64..1e3, M)) {
+        let mut frame = boxed_frame();
+        random_frame(&mut frame, &DhChain::rv1a(), &Q, m, seed, contact);
+        let mut gs = Box::new(BlockGs::<M>::new());
+        gs.prepare_frame(&frame).expect("valid");
+        let mut lambda = [0.0; M];
+        lambda.copy_from_slice(&warm);
+        let rep = gs.solve(&frame.w, &frame.delta_free, &mut lambda, &GsParams { max_iterations: 2000, ..GsParams::default() });
+        let m = frame.m as usize;
+        prop_assert!(lambda[..m].iter().all(|x| x.is_finite()));
+        prop_assert!(rep.residual.is_finite());
+        for g in frame.used_groups() {
+            let s = g.start as usize;
+            match GroupKind::from_raw(g.kind) {
+                Some(GroupKind::Contact) => {
+                    prop_assert!(lambda[s] >= 0.0);
+                    prop_assert!(lambda[s + 1].hypot(lambda[s + 2]) <= g.mu * lambda[s] * (1.0 + 1e-12) + 1e-300);
+                }
+                Some(GroupKind::Sliding) => {
+                    let bound = g.mu * lambda[s].hypot(lambda[s + 1]) + g.r0;
+                    prop_assert!(lambda[s + 2].abs() <= bound * (1.0 + 1e-12) + 1e-300);
+                }
+                _ => {}
+            }
+        }
+    }
+}
+
+#[test]
+fn error_variants_carry_their_fields() {
+    let mut frame = boxed_frame();
+    random_frame(&mut frame, &DhChain::rv1a(), &Q, M, 7, true);
+    assert_eq!(frame.validate(), Ok(()));
+    let mut f = frame.clone();
+    f.m = M as u32 + 1;
+    assert_eq!(
+        f.validate(),
+        Err(ValidationError::CapacityExceeded {
+            requested: M + 1,
+            capacity: M
+        })
+    );
+    let mut f = frame.clone();
+    f.w[3][4] = f64::NAN;
+    assert_eq!(
+        f.validate(),
+        Err(ValidationError::NonFinite {
+            field: "w",
+            index: 3 * M + 4
+        })
+    );
+    let mut f = frame.clone();
+    f.groups[1].mu = -0.1;
+    assert_eq!(
+        f.validate(),
+        Err(ValidationError::NegativeFriction { group: 1 })
+    );
+    let mut f = frame.clone();
+    f.w[7][7] = 0.0;
+    assert_eq!(
+        f.validate(),
+        Err(ValidationError::NonPositiveDiagonal { row: 7 })
+    );
+    let mut f = frame.clone();
+    f.version = 99;
+    assert!(matches!(
+        f.validate(),
+        Err(ValidationError::VersionMismatch { found: 99, .. })
+    ));
+    let mut f = frame.clone();
+    f.m = 5;
+    assert!(matches!(
+        f.validate(),
+        Err(ValidationError::TooFewRows { m: 5, min: 6 })
+    ));
+    let mut f = frame.clone();
+    f.groups[2].start += 1;
+    assert!(matches!(
+        f.validate(),
+        Err(ValidationError::GroupLayout { group: 2, .. })
+    ));
+    let e: &dyn std::error::Error = &ValidationError::NotRotation;
+    assert!(!e.to_string().is_empty());
+}
