@@ -23,7 +23,7 @@ use nalgebra::{Matrix3, Vector3};
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PointMap {
     /// Start index of each 3-dof block in the (reduced) dof vector, and its weight.
-    pub blocks: [(usize, f64); 4],
+    pub blocks: [(usize, f64); 8],
     /// Number of blocks used.
     pub len: usize,
 }
@@ -31,22 +31,21 @@ pub struct PointMap {
 impl PointMap {
     /// A single 3-dof block with weight 1 (a needle node's translation or rotation).
     pub fn single(block: usize) -> Self {
-        Self {
-            blocks: [(block, 1.0), (0, 0.0), (0, 0.0), (0, 0.0)],
-            len: 1,
-        }
+        let mut blocks = [(0, 0.0); 8];
+        blocks[0] = (block, 1.0);
+        Self { blocks, len: 1 }
     }
 
-    /// A weighted combination of blocks; blocks given as `None` (fixed, eliminated dofs) are dropped.
+    /// A weighted combination of up to eight blocks (two embedded points); blocks given as `None` (fixed, eliminated dofs) are dropped.
     pub fn weighted(blocks: impl IntoIterator<Item = (Option<usize>, f64)>) -> Self {
         let mut m = Self {
-            blocks: [(0, 0.0); 4],
+            blocks: [(0, 0.0); 8],
             len: 0,
         };
         for (b, w) in blocks {
             if let Some(b) = b
                 && w != 0.0
-                && m.len < 4
+                && m.len < 8
             {
                 m.blocks[m.len] = (b, w);
                 m.len += 1;

@@ -12,6 +12,7 @@
 //! The two benchmark scenes of `BENCHMARK.md` are embedded ([`Scene::builtin`]) so the CLI runs
 //! without any file.
 
+mod convert;
 mod path;
 mod validate;
 
@@ -283,7 +284,8 @@ pub struct InverseSpec {
     /// Blend distance d: θ1 in the air, θ2 beyond this insertion depth, linear in between [mm].
     #[serde(default = "default_blend")]
     pub blend_distance: f64,
-    /// Damping ε of the pseudo-inverse `Jᵀ(JJᵀ + ε²I)⁻¹` [mm].
+    /// Damping ε of the pseudo-inverse `Jᵀ(JJᵀ + ε²I)⁻¹` away from singularities [mm/rad]
+    /// (the core raises it near a singularity).
     #[serde(default = "default_damping")]
     pub damping: f64,
     /// Weight of the angular objective against the position error [mm/rad].
@@ -310,7 +312,8 @@ impl Default for InverseSpec {
 #[derive(Clone, Copy, Debug, Deserialize, Serialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct SolverSpec {
-    /// Gauss-Seidel tolerance on the largest change of λ between sweeps, relative [-].
+    /// Gauss-Seidel tolerance: stop when the largest `|W_ii Δλ_i|` of a sweep is below this
+    /// times `‖δ‖∞` [-].
     #[serde(default = "default_gs_tol")]
     pub gs_tolerance: f64,
     /// Gauss-Seidel iteration cap.
@@ -474,19 +477,19 @@ fn default_blend() -> f64 {
     20.0
 }
 fn default_damping() -> f64 {
-    0.05
+    1.0
 }
 fn default_angle_weight() -> f64 {
-    10.0
+    100.0
 }
 fn default_inverse_tol() -> f64 {
-    1.0e-8
+    1.0e-6
 }
 fn default_gs_tol() -> f64 {
-    1.0e-9
+    1.0e-10
 }
 fn default_gs_iter() -> u32 {
-    200
+    400
 }
 fn default_h() -> f64 {
     0.04
