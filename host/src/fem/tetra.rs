@@ -1,0 +1,322 @@
+//! Corotational linear tetrahedra (paper eq. 1): `K_e = R_e K0_e R_eᵀ`.
+//!
+//! Per element, once: the rest stiffness `K0_e = V_e Bᵀ D B` (isotropic, Lamé λ, μ) and the rest
+//! node positions relative to the element centroid `X̄_a = X_a − X_c`. Per step: the rotation
+//! `R_e` from the polar decomposition of the deformation gradient `F = D_s D_m⁻¹`
+//! ([`rotation_from_deformation`]), the internal force
+//!
+//! ```text
+//! f_e = R K0 (Rᵀ (x − x_c) − X̄)        (node-wise, x_c the current centroid)
+//! ```
+//!
+//! which vanishes for any rigid motion (the centring removes the translation, `R` the rotation),
+//! and the tangent `K_e = R K0 Rᵀ` (exact at rigid configurations, `O(strain)` away from them:
+//! the derivative of `R` is neglected, as in the paper and SOFA).
+//!
+//! Sign convention: `f_int` is the force the element needs to *be held* in place; equilibrium
+//! is `f_int(x) = f_ext`, and one Newton step solves `K Δx = f_ext − f_int`.
+//!
+//! Storage is contiguous per quantity (struct of arrays): tets, rest offsets, `D_m⁻¹`, the ten
+//! upper 3×3 blocks of `K0`, rotations.
+
+use super::{Elasticity, FemError};
+use crate::mesh::TetMesh;
+use nalgebra::{Matrix3, SMatrix, Vector3};
+
+/// The ten upper 3×3 blocks `(a, b)`, `a ≤ b`, of a 12×12 element matrix, in storage order.
+pub const BLOCK_PAIRS: [(usize, usize); 10] = [
+    (0, 0),
+    (0, 1),
+    (0, 2),
+    (0, 3),
+    (1, 1),
+    (1, 2),
+    (1, 3),
+    (2, 2),
+    (2, 3),
+    (3, 3),
+];
+
+/// Number of distinct entries of a symmetric 12×12 element stiffness written by assembly:
+/// 6 off-diagonal blocks × 9 + 4 diagonal blocks × 6 (upper triangle).
+pub const STIFFNESS_ENTRIES: usize = 78;
+
+/// How element rotations are obtained.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum Kinematics {
+    /// Rotation from the polar decomposition of the deformation gradient (the paper's model).
+    #[default]
+    Corotational,
+    /// `R = I` always: small-strain linear elasticity (for reference comparisons).
+    Linear,
+}
+
+/// Rotation closest to the deformation gradient `f` (polar decomposition `F = R S`), computed
+/// through an SVD `F = U Σ Vᵀ` obtained from the symmetric eigen-decomposition of `FᵀF`.
+///
+/// Reflections: `V` is made a proper rotation and the last column of `U` is taken as
+/// `u₀ × u₁` (not `F v₂ / σ₂`). When `det F > 0` this is the usual polar rotation; when the
+/// element is inverted (`det F < 0`) it amounts to negating the smallest singular value
+/// (Irving et al. 2004), so `R` stays a proper rotation and the elastic force pushes the element
+/// back to positive volume instead of blowing up. Degenerate cases stay finite: if `F` has rank
+/// one the second axis is any unit vector orthogonal to the first, if `F ≈ 0` the identity is returned.
+pub fn rotation_from_deformation(f: &Matrix3<f64>) -> Matrix3<f64> {
+    let c = f.tr_mul(f);
+    let eig = c.symmetric_eigen();
+    let l = eig.eigenvalues;
+    let mut order = [0usize, 1, 2];
+    order.sort_unstable_by(|&a, &b| l[b].total_cmp(&l[a]));
+    let v0: Vector3<f64> = eig.eigenvectors.column(order[0]).into();
+    let v1: Vector3<f64> = eig.eigenvectors.column(order[1]).into();
+    let v2 = v0.cross(&v1);
+    let scale = f.norm();
+    if !(scale > 0.0) || !scale.is_finite() {
+        return Matrix3::identity();
+    }
+    let mut u0 = f * v0;
+    let n0 = u0.norm();
+    if n0 <= 1e-12 * scale {
+        return Matrix3::identity();
+    }
+    u0 /= n0;
+    let mut u1 = f * v1;
+    u1 -= u0 * u0.dot(&u1);
+    let n1 = u1.norm();
+    if n1 <= 1e-12 * scale {
+        // Rank one: any unit vector orthogonal to u0.
+        let a = if u0.x.abs() < 0.9 {
+            Vector3::x()
+        } else {
+            Vector3::y()
+        };
+        u1 = (a - u0 * u0.dot(&a)).normalize();
+    } else {
+        u1 /= n1;
+    }
+    let u2 = u0.cross(&u1);
+    u0 * v0.transpose() + u1 * v1.transpose() + u2 * v2.transpose()
+}
+
+/// Rest stiffness blocks and rest data of the gel's corotational tetrahedra.
+#[derive(Clone, Debug)]
+pub struct CorotationalTetra {
+    kinematics: Kinematics,
+    tets: Vec<[usize; 4]>,
+    /// Rest node positions relative to the rest centroid [mm].
+    rest_local: Vec<[Vector3<f64>; 4]>,
+    /// Inverse rest edge matrix `D_m⁻¹` [1/mm].
+    dm_inv: Vec<Matrix3<f64>>,
+    /// Rest volumes [mm³].
+    volumes: Vec<f64>,
+    /// Upper blocks of `K0` in [`BLOCK_PAIRS`] order [N/mm].
+    k0: Vec<[Matrix3<f64>; 10]>,
+    /// Current element rotations (world ← rest).
+    rotations: Vec<Matrix3<f64>>,
+}
+
+impl CorotationalTetra {
+    /// Precomputes `K0_e`, `D_m⁻¹` and the rest offsets of every element of `mesh` (its node
+    /// positions are the rest configuration).
+    ///
+    /// # Errors
+    /// [`FemError::Material`] for invalid elastic constants, [`FemError::Mesh`] if the mesh is invalid.
+    pub fn try_new(
+        mesh: &TetMesh,
+        material: &Elasticity,
+        kinematics: Kinematics,
+    ) -> Result<Self, FemError> {
+        material.validate()?;
+        mesh.validate().map_err(FemError::Mesh)?;
+        let (lambda, mu) = material.lame();
+        let m = mesh.tets.len();
+        let mut rest_local = Vec::with_capacity(m);
+        let mut dm_inv = Vec::with_capacity(m);
+        let mut volumes = Vec::with_capacity(m);
+        let mut k0 = Vec::with_capacity(m);
+        for t in &mesh.tets {
+            let x = t.map(|i| mesh.nodes[i]);
+            let c = (x[0] + x[1] + x[2] + x[3]) / 4.0;
+            rest_local.push(x.map(|p| p - c));
+            let dm = Matrix3::from_columns(&[x[1] - x[0], x[2] - x[0], x[3] - x[0]]);
+            let inv = dm.try_inverse().ok_or(FemError::Mesh(
+                crate::mesh::MeshError::DegenerateElement {
+                    element: volumes.len(),
+                    volume: 0.0,
+                    quality: 0.0,
+                },
+            ))?;
+            let vol = dm.determinant() / 6.0;
+            // Shape-function gradients: rows of D_m⁻¹ for nodes 1..3, minus their sum for node 0.
+            let mut g = [Vector3::zeros(); 4];
+            for a in 1..4 {
+                g[a] = inv.row(a - 1).transpose();
+            }
+            g[0] = -(g[1] + g[2] + g[3]);
+            let blocks = BLOCK_PAIRS.map(|(a, b)| {
+                // K_ab,ij = V (λ g_a,i g_b,j + μ g_a,j g_b,i + μ δ_ij g_a·g_b)
+                vol * (lambda * g[a] * g[b].transpose()
+                    + mu * g[b] * g[a].transpose()
+                    + Matrix3::identity() * (mu * g[a].dot(&g[b])))
+            });
+            dm_inv.push(inv);
+            volumes.push(vol);
+            k0.push(blocks);
+        }
+        Ok(Self {
+            kinematics,
+            tets: mesh.tets.clone(),
+            rest_local,
+            dm_inv,
+            volumes,
+            k0,
+            rotations: vec![Matrix3::identity(); m],
+        })
+    }
+
+    /// Number of elements.
+    pub fn len(&self) -> usize {
+        self.tets.len()
+    }
+
+    /// Whether there is no element.
+    pub fn is_empty(&self) -> bool {
+        self.tets.is_empty()
+    }
+
+    /// Node indices of the elements.
+    pub fn tets(&self) -> &[[usize; 4]] {
+        &self.tets
+    }
+
+    /// Rest volume of element `e` [mm³].
+    pub fn volume(&self, e: usize) -> f64 {
+        self.volumes[e]
+    }
+
+    /// Current rotation of element `e` (world ← rest).
+    pub fn rotation(&self, e: usize) -> &Matrix3<f64> {
+        &self.rotations[e]
+    }
+
+    /// Rest stiffness `K0_e` as a full 12×12 matrix [N/mm] (dof order: node-major, xyz).
+    pub fn rest_stiffness(&self, e: usize) -> SMatrix<f64, 12, 12> {
+        self.full_matrix(e, &Matrix3::identity())
+    }
+
+    /// Current tangent `K_e = R K0 Rᵀ` as a full 12×12 matrix [N/mm].
+    pub fn element_stiffness(&self, e: usize) -> SMatrix<f64, 12, 12> {
+        self.full_matrix(e, &self.rotations[e])
+    }
+
+    fn full_matrix(&self, e: usize, r: &Matrix3<f64>) -> SMatrix<f64, 12, 12> {
+        let mut k = SMatrix::<f64, 12, 12>::zeros();
+        for (p, &(a, b)) in BLOCK_PAIRS.iter().enumerate() {
+            let blk = r * self.k0[e][p] * r.transpose();
+            k.fixed_view_mut::<3, 3>(3 * a, 3 * b).copy_from(&blk);
+            if a != b {
+                k.fixed_view_mut::<3, 3>(3 * b, 3 * a)
+                    .copy_from(&blk.transpose());
+            }
+        }
+        k
+    }
+
+    /// Deformation gradient `F = D_s D_m⁻¹` of element `e` at positions `x` [mm].
+    pub fn deformation_gradient(&self, e: usize, x: &[Vector3<f64>]) -> Matrix3<f64> {
+        let t = self.tets[e];
+        let ds = Matrix3::from_columns(&[x[t[1]] - x[t[0]], x[t[2]] - x[t[0]], x[t[3]] - x[t[0]]]);
+        ds * self.dm_inv[e]
+    }
+
+    /// Updates every element rotation from the positions `x` [mm] (no-op for [`Kinematics::Linear`]).
+    pub fn update_rotations(&mut self, x: &[Vector3<f64>]) {
+        if self.kinematics == Kinematics::Linear {
+            return;
+        }
+        for e in 0..self.tets.len() {
+            let f = self.deformation_gradient(e, x);
+            self.rotations[e] = rotation_from_deformation(&f);
+        }
+    }
+
+    /// Internal force of element `e` at positions `x` with the current rotation, node-major [N].
+    pub fn element_internal_force(&self, e: usize, x: &[Vector3<f64>]) -> [Vector3<f64>; 4] {
+        let t = self.tets[e];
+        let r = &self.rotations[e];
+        let c = (x[t[0]] + x[t[1]] + x[t[2]] + x[t[3]]) / 4.0;
+        let rest = &self.rest_local[e];
+        let u: [Vector3<f64>; 4] = std::array::from_fn(|a| r.tr_mul(&(x[t[a]] - c)) - rest[a]);
+        let mut f = [Vector3::zeros(); 4];
+        for (p, &(a, b)) in BLOCK_PAIRS.iter().enumerate() {
+            let k = &self.k0[e][p];
+            f[a] += k * u[b];
+            if a != b {
+                f[b] += k.tr_mul(&u[a]);
+            }
+        }
+        f.map(|v| r * v)
+    }
+
+    /// Adds the internal forces of all elements at positions `x` to `f` (3 dofs per node) [N].
+    pub fn add_internal_forces(&self, x: &[Vector3<f64>], f: &mut [f64]) {
+        for e in 0..self.tets.len() {
+            let fe = self.element_internal_force(e, x);
+            for (a, &n) in self.tets[e].iter().enumerate() {
+                for i in 0..3 {
+                    f[3 * n + i] += fe[a][i];
+                }
+            }
+        }
+    }
+
+    /// Global `(row, col)` dof pairs of element `e`'s [`STIFFNESS_ENTRIES`] entries, in the order
+    /// [`CorotationalTetra::assemble`] writes them.
+    pub fn stiffness_entry_dofs(&self, e: usize) -> impl Iterator<Item = (usize, usize)> + '_ {
+        let t = self.tets[e];
+        BLOCK_PAIRS.iter().flat_map(move |&(a, b)| {
+            (0..3).flat_map(move |i| {
+                (0..3)
+                    .filter(move |&j| a != b || i <= j)
+                    .map(move |j| (3 * t[a] + i, 3 * t[b] + j))
+            })
+        })
+    }
+
+    /// Writes `scale · R K0 Rᵀ` of every element into `values` through `slots`
+    /// (`STIFFNESS_ENTRIES` per element, [`CorotationalTetra::stiffness_entry_dofs`] order;
+    /// `u32::MAX` marks an entry to skip, e.g. a Dirichlet dof). Values are added, not overwritten.
+    pub fn assemble(&self, slots: &[u32], values: &mut [f64], scale: f64) {
+        debug_assert_eq!(slots.len(), STIFFNESS_ENTRIES * self.tets.len());
+        for e in 0..self.tets.len() {
+            let r = &self.rotations[e];
+            let s = &slots[STIFFNESS_ENTRIES * e..STIFFNESS_ENTRIES * (e + 1)];
+            let mut k = 0;
+            for (p, &(a, b)) in BLOCK_PAIRS.iter().enumerate() {
+                let blk = r * self.k0[e][p] * r.transpose();
+                for i in 0..3 {
+                    for j in 0..3 {
+                        if a == b && j < i {
+                            continue;
+                        }
+                        let slot = s[k];
+                        k += 1;
+                        if slot != u32::MAX {
+                            values[slot as usize] += scale * blk[(i, j)];
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    /// Lumped nodal masses `ρ V / 4` summed per node [t] for density `density` [t/mm³].
+    pub fn lumped_mass(&self, node_count: usize, density: f64) -> Vec<f64> {
+        let mut m = vec![0.0; node_count];
+        for (e, t) in self.tets.iter().enumerate() {
+            for &n in t {
+                m[n] += density * self.volumes[e] / 4.0;
+            }
+        }
+        m
+    }
+}
