@@ -1,0 +1,207 @@
+//! Needle beams: tangent against central differences of the internal force, rigid-motion
+//! invariance, and the cantilever of `cantilever.json` (exact elastica, SI → mm, N).
+
+use nalgebra::{Isometry3, SMatrix, UnitQuaternion, Vector3};
+use needle_host::fem::Elasticity;
+use needle_host::fem::beam::{BeamSection, CorotationalBeams};
+use needle_host::free_motion::{NeedleModel, NeedleParams};
+use needle_tests::load_ref;
+
+fn section(e: f64, nu: f64, d: f64) -> BeamSection {
+    BeamSection {
+        elasticity: Elasticity {
+            young_modulus: e,
+            poisson_ratio: nu,
+        },
+        outer_diameter: d,
+        inner_diameter: 0.0,
+        density: 7.85e-9,
+    }
+}
+
+/// A deformed, rotated two-node configuration (rest: along x, length 4 mm).
+fn deformed() -> (
+    CorotationalBeams,
+    Vec<Vector3<f64>>,
+    Vec<UnitQuaternion<f64>>,
+) {
+    let x0 = vec![Vector3::zeros(), Vector3::new(4.0, 0.0, 0.0)];
+    let q0 = vec![UnitQuaternion::identity(); 2];
+    let beams =
+        CorotationalBeams::try_new(&x0, &q0, vec![[0, 1]], section(200_000.0, 0.3, 1.0)).unwrap();
+    let rigid = UnitQuaternion::from_scaled_axis(Vector3::new(0.4, -0.9, 0.6));
+    let x = vec![
+        Vector3::new(0.3, -0.2, 0.1),
+        Vector3::new(0.3, -0.2, 0.1) + rigid * Vector3::new(4.01, 0.15, -0.1),
+    ];
+    let q = vec![
+        rigid * UnitQuaternion::from_scaled_axis(Vector3::new(0.05, 0.03, -0.04)),
+        rigid * UnitQuaternion::from_scaled_axis(Vector3::new(-0.06, 0.08, 0.07)),
+    ];
+    (beams, x, q)
+}
+
+fn perturbed(
+    x: &[Vector3<f64>],
+    q: &[UnitQuaternion<f64>],
+    dof: usize,
+    eps: f64,
+) -> (Vec<Vector3<f64>>, Vec<UnitQuaternion<f64>>) {
+    let (mut x, mut q) = (x.to_vec(), q.to_vec());
+    let node = dof / 6;
+    let k = dof % 6;
+    if k < 3 {
+        x[node][k] += eps;
+    } else {
+        let mut w = Vector3::zeros();
+        w[k - 3] = eps;
+        q[node] = UnitQuaternion::from_scaled_axis(w) * q[node];
+    }
+    (x, q)
+}
+
+#[test]
+fn beam_tangent_matches_central_differences() {
+    let (beams, x, q) = deformed();
+    let k = beams.element_tangent(0, &x, &q);
+    let eps = 1e-6;
+    let mut fd = SMatrix::<f64, 12, 12>::zeros();
+    for j in 0..12 {
+        let (xp, qp) = perturbed(&x, &q, j, eps);
+        let (xm, qm) = perturbed(&x, &q, j, -eps);
+        let fp = beams.element_state(0, &xp, &qp).force;
+        let fm = beams.element_state(0, &xm, &qm).force;
+        fd.set_column(j, &((fp - fm) / (2.0 * eps)));
+    }
+    let scale = k.abs().max();
+    let err = (k - fd).abs().max() / scale;
+    assert!(
+        err < 1e-7,
+        "tangent vs central differences: relative error {err:e}"
+    );
+    // The assembled (symmetric) part is symmetric and differs from K only by ½[m]×.
+    let h = beams.element_state(0, &x, &q).hessian;
+    assert!((h - h.transpose()).abs().max() < 1e-9 * scale);
+    let f = beams.element_state(0, &x, &q).force;
+    assert!(f.norm() > 1e-3, "configuration is really deformed");
+}
+
+#[test]
+fn beam_force_is_the_gradient_of_its_energy() {
+    let (beams, x, q) = deformed();
+    let f = beams.element_state(0, &x, &q).force;
+    let eps = 1e-6;
+    for j in 0..12 {
+        let (xp, qp) = perturbed(&x, &q, j, eps);
+        let (xm, qm) = perturbed(&x, &q, j, -eps);
+        let d = (beams.element_state(0, &xp, &qp).energy - beams.element_state(0, &xm, &qm).energy)
+            / (2.0 * eps);
+        assert!(
+            (d - f[j]).abs() < 1e-6 * f.abs().max(),
+            "dof {j}: dΠ {d} vs f {}",
+            f[j]
+        );
+    }
+}
+
+#[test]
+fn rigid_motion_creates_no_beam_force() {
+    let x0 = vec![
+        Vector3::zeros(),
+        Vector3::new(3.0, 1.0, 0.5),
+        Vector3::new(6.0, 1.5, 0.0),
+    ];
+    let q0 = vec![UnitQuaternion::from_scaled_axis(Vector3::new(0.1, 0.2, 0.3)); 3];
+    let beams =
+        CorotationalBeams::try_new(&x0, &q0, vec![[0, 1], [1, 2]], section(200_000.0, 0.3, 1.0))
+            .unwrap();
+    let r =
+        UnitQuaternion::from_scaled_axis(Vector3::new(0.0, 0.0, std::f64::consts::FRAC_PI_2 * 1.3));
+    let t = Vector3::new(10.0, -4.0, 2.0);
+    let x: Vec<_> = x0.iter().map(|p| r * p + t).collect();
+    let q: Vec<_> = q0.iter().map(|qq| r * qq).collect();
+    for e in 0..2 {
+        let s = beams.element_state(e, &x, &q);
+        assert!(
+            s.force.abs().max() < 1e-9 && s.energy.abs() < 1e-12,
+            "element {e}: {:?}",
+            s.force
+        );
+    }
+}
+
+/// Static cantilever: load stepped in `steps` increments, Newton iterations to equilibrium.
+fn cantilever(elements: usize, tip_load: [f64; 6], steps: usize) -> (Vector3<f64>, f64, usize) {
+    let r = load_ref("cantilever.json");
+    let l = r["geometry"]["L_m"].as_f64().unwrap() * 1000.0;
+    let d = r["geometry"]["outer_diameter_m"].as_f64().unwrap() * 1000.0;
+    let e = r["material"]["E_Pa"].as_f64().unwrap() * 1e-6;
+    let nu = r["material"]["nu"].as_f64().unwrap();
+    let params = NeedleParams {
+        section: section(e, nu, d),
+        time_step: None,
+        refactor_every: 1,
+    };
+    let mut needle =
+        NeedleModel::straight(&Isometry3::identity(), l, elements, &[0], &params).unwrap();
+    let n = needle.node_count();
+    let mut iterations = 0;
+    for s in 1..=steps {
+        let mut f = vec![0.0; 6 * n];
+        for k in 0..6 {
+            f[6 * (n - 1) + k] = tip_load[k] * s as f64 / steps as f64;
+        }
+        for _ in 0..50 {
+            iterations += 1;
+            let dx = needle.free_motion(&f).unwrap().to_vec();
+            needle.apply_displacement(&dx).unwrap();
+            let norm = dx.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            if norm < 1e-11 * l {
+                break;
+            }
+        }
+    }
+    let tip = needle.positions()[n - 1];
+    let (axis, angle) = needle.orientations()[n - 1]
+        .axis_angle()
+        .map_or((Vector3::z_axis(), 0.0), |(a, t)| (a, t));
+    (tip, angle * axis.z.signum(), iterations)
+}
+
+#[test]
+fn cantilever_matches_the_elastica_within_0_1_percent() {
+    let r = load_ref("cantilever.json");
+    let l = r["geometry"]["L_m"].as_f64().unwrap() * 1000.0;
+    for case in r["cases"].as_array().unwrap() {
+        let kind = case["load_kind"].as_str().unwrap();
+        let deg = case["target_tip_rotation_deg"].as_f64().unwrap();
+        let load = match kind {
+            "tip_moment" => [
+                0.0,
+                0.0,
+                0.0,
+                0.0,
+                0.0,
+                case["moment_Nm"].as_f64().unwrap() * 1000.0,
+            ],
+            _ => [0.0, case["force_N"].as_f64().unwrap(), 0.0, 0.0, 0.0, 0.0],
+        };
+        let (tip, rot, its) = cantilever(40, load, 6);
+        let ex = Vector3::new(
+            case["exact"]["tip_x_m"].as_f64().unwrap() * 1000.0,
+            case["exact"]["tip_y_m"].as_f64().unwrap() * 1000.0,
+            0.0,
+        );
+        let err = (tip - ex).norm() / l;
+        let rot_ex = case["exact"]["tip_rotation_rad"].as_f64().unwrap();
+        println!(
+            "{kind} {deg}°: tip ({:.4}, {:.4}) mm vs ({:.4}, {:.4}); error {:.2e} L; rotation {rot:.6} vs {rot_ex:.6}; {its} Newton steps",
+            tip.x, tip.y, ex.x, ex.y, err
+        );
+        assert!(err < 1e-3, "{kind} {deg}°: tip error {err:e} L");
+        assert!(
+            (rot - rot_ex).abs() < 1e-3 * rot_ex.max(0.1),
+            "{kind} {deg}°: tip rotation {rot} vs {rot_ex}"
+        );
+    }
+}
