@@ -16,6 +16,10 @@
 //! 4. Jacobian by forward differences, column `i` from a solve at `q + δq·e_i` warm-started from
 //!    `λ_q`: `J_i = (T(q + δq e_i) − T(q)) / δq`. (The paper's eq. 14 writes the negative,
 //!    `(T(q) − T(q + δq_i)) / δq`, with `Δq = J⁻¹ T`; both give the same Newton step.)
+//!    The angular row is differenced through the rotation vectors whose norms are θ1 and θ2
+//!    (`dθ = φ̂ · dφ`, see [`Objective`]): differencing the angle itself is wrong once θ is
+//!    smaller than the change δq causes (a norm's one-sided difference near its minimum gives
+//!    `|dφ|`, not `φ̂ · dφ`), which stalls the Newton iteration at θ ≈ δq·|∂φ/∂q|.
 //! 5. damped least squares `Δq = −Jᵀ (J Jᵀ + ε² I)⁻¹ T`, so that `T + J Δq ≈ 0`; `ε` grows when
 //!    the smallest singular value of `J` falls below a threshold (the RV-1A wrist is near singular
 //!    in the benchmark pose);
@@ -49,10 +53,10 @@ pub struct InverseParams {
     pub angle_weight: f64,
     /// Damping ε of the pseudo-inverse away from singularities [mm/rad] (default 1).
     pub damping: f64,
-    /// Extra damping added at a singularity [mm/rad] (default 50).
+    /// Extra damping added at a singularity [mm/rad] (default 20).
     pub damping_max: f64,
     /// Smallest singular value of J below which the damping rises towards `damping_max`
-    /// [mm/rad] (default 20).
+    /// [mm/rad] (default 5).
     pub singular_threshold: f64,
     /// Skip the Jacobian when `‖T‖² ≤ tolerance` [mm²] (default 1e-6).
     pub tolerance: f64,
@@ -69,8 +73,8 @@ impl Default for InverseParams {
             blend_depth: 20.0,
             angle_weight: 100.0,
             damping: 1.0,
-            damping_max: 50.0,
-            singular_threshold: 20.0,
+            damping_max: 20.0,
+            singular_threshold: 5.0,
             tolerance: 1e-6,
             gs: GsParams {
                 tolerance: 1e-10,
@@ -153,6 +157,44 @@ pub struct Objective {
     pub theta2: f64,
     /// Blend factor k [-].
     pub k: f64,
+    /// Rotation vector taking the target tangent onto the tip direction, `|φ1| = θ1` [rad].
+    pub phi1: [f64; 3],
+    /// Rotation vector taking the entry direction onto the base direction, `|φ2| = θ2` [rad].
+    pub phi2: [f64; 3],
+}
+
+impl Objective {
+    /// Derivative of the angular component `w_θ (k θ1 + (1 − k) θ2)` along a change of the
+    /// rotation vectors, `perturbed` holding the values after a step `h`: the angles are norms
+    /// of smooth rotation vectors, so the vectors are differenced and the norm is differentiated
+    /// analytically, `dθ = φ̂ · dφ` (0 at θ = 0, where θ is minimal).
+    fn angle_derivative(&self, perturbed: &Objective, h: f64, weight: f64) -> f64 {
+        let dir = |phi: &[f64; 3], theta: f64| {
+            if theta > 0.0 {
+                Vector3::from(*phi) / theta
+            } else {
+                Vector3::zeros()
+            }
+        };
+        let d1 = (Vector3::from(perturbed.phi1) - Vector3::from(self.phi1)) / h;
+        let d2 = (Vector3::from(perturbed.phi2) - Vector3::from(self.phi2)) / h;
+        let g1 = dir(&self.phi1, self.theta1).dot(&d1);
+        let g2 = dir(&self.phi2, self.theta2).dot(&d2);
+        weight * (self.k * g1 + (1.0 - self.k) * g2)
+    }
+}
+
+/// Rotation vector taking `from` onto `to` (axis `from × to`, angle in `[0, π]`), with its
+/// angle; zero when either vector is zero or they are parallel.
+fn rotation_between(from: &Vector3<f64>, to: &Vector3<f64>) -> ([f64; 3], f64) {
+    let theta = angle_between(from, to);
+    let axis = from.cross(to);
+    let n = axis.norm();
+    if n > 0.0 && theta > 0.0 {
+        ((axis * (theta / n)).into(), theta)
+    } else {
+        ([0.0; 3], theta)
+    }
 }
 
 /// Rotation matrix from the frame's row-major array.
@@ -186,8 +228,8 @@ pub fn evaluate_objective<const M: usize>(
     let tangent = v(ObsIndex::TARGET_TANGENT);
     let entry = v(ObsIndex::ENTRY_POINT);
     let e = target - tip;
-    let theta1 = angle_between(&tip_dir, &tangent);
-    let theta2 = angle_between(&b.z_axis(), &(entry - b.translation));
+    let (phi1, theta1) = rotation_between(&tangent, &tip_dir);
+    let (phi2, theta2) = rotation_between(&(entry - b.translation), &b.z_axis());
     let k = blend_factor(
         frame.inserted != 0,
         frame.insertion_depth,
@@ -199,6 +241,8 @@ pub fn evaluate_objective<const M: usize>(
         theta1,
         theta2,
         k,
+        phi1,
+        phi2,
     }
 }
 
@@ -369,9 +413,10 @@ impl<const M: usize> Controller<M> {
                 let (bi, r) = self.solve_at(frame, &qi, false);
                 count(&mut report, &r);
                 let ti = evaluate_objective(frame, &self.lambda_work, &bi, &p);
-                for r in 0..4 {
+                for r in 0..3 {
                     jac[(r, i)] = (ti.t[r] - obj0.t[r]) / p.joint_step;
                 }
+                jac[(3, i)] = obj0.angle_derivative(&ti, p.joint_step, p.angle_weight);
             }
             // 5. damped least squares with singularity-adaptive damping.
             let jjt: Matrix4<f64> = jac * jac.transpose();
@@ -469,6 +514,7 @@ fn smallest_eigenvalue(a: &Matrix4<f64>) -> f64 {
 }
 
 #[cfg(test)]
+#[allow(clippy::expect_used, clippy::unwrap_used, clippy::panic)]
 mod tests {
     use super::*;
     use crate::synthetic::rigid_needle_frame;

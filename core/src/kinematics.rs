@@ -262,6 +262,7 @@ impl<const N: usize> DhChain<N> {
 }
 
 #[cfg(test)]
+#[allow(clippy::expect_used, clippy::unwrap_used, clippy::panic)]
 mod tests {
     use super::*;
 

@@ -135,6 +135,7 @@ pub(crate) fn spd_inverse_in_place(a: &mut [f64], n: usize) -> usize {
 }
 
 #[cfg(test)]
+#[allow(clippy::expect_used, clippy::unwrap_used, clippy::panic)]
 mod tests {
     use super::*;
 

@@ -128,7 +128,8 @@ proptest! {
                 prop_assert!(cmd.lambda[..frame.m as usize].iter().all(|x| x.is_finite()));
             }
             Err(e) => {
-                prop_assert!(frame.validate().is_err() || matches!(e, needle_core::StepError::NonFinite { .. }));
+                let explained = frame.validate().is_err() || matches!(e, needle_core::StepError::NonFinite { .. });
+                prop_assert!(explained);
                 prop_assert_eq!(cmd.q, before, "command untouched on error");
                 let _ = format!("{e}");
             }

@@ -1,0 +1,31 @@
+//! The whole inverse step (validate, factor, 8 constraint solves, Newton step) at m = 30 and
+//! m = 120 on seeded random frames. The controller warm-starts from its previous λ, as in
+//! production where consecutive frames are close; the `_cold` variant resets it every step.
+
+use criterion::{Criterion, criterion_group, criterion_main};
+use std::hint::black_box;
+
+mod common;
+use common::{command, controller, frame};
+
+fn bench(c: &mut Criterion) {
+    for m in [30usize, 120] {
+        let f = frame(m, 11);
+        let mut cmd = command();
+        let mut ctrl = controller();
+        let rep = ctrl.step(&f, &mut cmd).expect("valid frame");
+        println!("inverse_step_m{m}: {rep:?}");
+        c.bench_function(&format!("inverse_step_m{m}"), |b| {
+            b.iter(|| ctrl.step(black_box(&f), &mut cmd))
+        });
+        c.bench_function(&format!("inverse_step_m{m}_cold"), |b| {
+            b.iter(|| {
+                ctrl.reset_warm_start();
+                ctrl.step(black_box(&f), &mut cmd)
+            })
+        });
+    }
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);

@@ -1,0 +1,35 @@
+//! Instruction counts (valgrind, through gungraun) of the inverse step at m = 120, cold (fresh
+//! controller) — deterministic, so regressions show as exact count changes.
+//! Run: `cargo bench -p needle-core --bench inverse_instructions` (needs `gungraun-runner` 0.20).
+
+use gungraun::{library_benchmark, library_benchmark_group, main};
+use needle_core::{Command, ComplianceFrame, Controller, SolverReport};
+use std::hint::black_box;
+
+mod common;
+
+struct State {
+    frame: Box<ComplianceFrame<{ common::M }>>,
+    cmd: Box<Command<{ common::M }>>,
+    ctrl: Box<Controller<{ common::M }>>,
+}
+
+fn setup(m: usize) -> State {
+    State {
+        frame: common::frame(m, 11),
+        cmd: common::command(),
+        ctrl: common::controller(),
+    }
+}
+
+#[library_benchmark]
+#[bench::inverse_step_m30(args = (30), setup = setup)]
+#[bench::inverse_step_m120(args = (120), setup = setup)]
+fn inverse_step(mut s: State) -> SolverReport {
+    let rep = s.ctrl.step(black_box(&s.frame), &mut s.cmd);
+    black_box(rep.unwrap_or_default())
+}
+
+library_benchmark_group!(name = inverse; benchmarks = inverse_step);
+
+main!(library_benchmark_groups = inverse);
