@@ -1,0 +1,306 @@
+//! Corotational tetrahedra: tangent against central differences of the internal force, rigid
+//! rotations of the whole gel, inverted elements, the polar decomposition, and the free-motion
+//! API (static, quasi-static with `M/h²`, factor reuse, solve).
+
+use nalgebra::{Matrix3, Rotation3, SMatrix, SVector, Vector3};
+use needle_host::fem::Elasticity;
+use needle_host::fem::tetra::{CorotationalTetra, Kinematics, rotation_from_deformation};
+use needle_host::free_motion::{GelModel, GelParams};
+use needle_host::mesh::{BoxDivisions, TetMesh, box_mesh, box_mesh_with_divisions};
+
+const GEL: Elasticity = Elasticity {
+    young_modulus: 0.005,
+    poisson_ratio: 0.45,
+};
+
+fn one_tet() -> TetMesh {
+    TetMesh::try_new(
+        vec![
+            Vector3::new(0.0, 0.0, 0.0),
+            Vector3::new(10.0, 1.0, 0.0),
+            Vector3::new(2.0, 9.0, 1.0),
+            Vector3::new(1.0, 2.0, 11.0),
+        ],
+        vec![[0, 1, 2, 3]],
+    )
+    .unwrap()
+}
+
+/// Central-difference tangent of the element force, rotations re-evaluated at each perturbation.
+fn fd_tangent(tetra: &mut CorotationalTetra, x: &[Vector3<f64>], eps: f64) -> SMatrix<f64, 12, 12> {
+    let mut k = SMatrix::<f64, 12, 12>::zeros();
+    let force = |tetra: &mut CorotationalTetra, x: &[Vector3<f64>]| {
+        tetra.update_rotations(x);
+        let f = tetra.element_internal_force(0, x);
+        SVector::<f64, 12>::from_iterator(f.iter().flat_map(|v| [v.x, v.y, v.z]))
+    };
+    for j in 0..12 {
+        let mut xp = x.to_vec();
+        let mut xm = x.to_vec();
+        xp[j / 3][j % 3] += eps;
+        xm[j / 3][j % 3] -= eps;
+        let col = (force(tetra, &xp) - force(tetra, &xm)) / (2.0 * eps);
+        k.set_column(j, &col);
+    }
+    tetra.update_rotations(x);
+    k
+}
+
+#[test]
+fn tetra_tangent_matches_central_differences_at_rest() {
+    let mesh = one_tet();
+    let mut tetra = CorotationalTetra::try_new(&mesh, &GEL, Kinematics::Corotational).unwrap();
+    let fd = fd_tangent(&mut tetra, &mesh.nodes, 1e-6);
+    let k = tetra.element_stiffness(0);
+    let err = (k - fd).abs().max() / k.abs().max();
+    assert!(err < 1e-7, "at rest: relative error {err:e}");
+    assert!((k - tetra.rest_stiffness(0)).abs().max() < 1e-14 * k.abs().max());
+}
+
+#[test]
+fn tetra_tangent_matches_central_differences_rotated_small_strain() {
+    let mesh = one_tet();
+    let mut tetra = CorotationalTetra::try_new(&mesh, &GEL, Kinematics::Corotational).unwrap();
+    let rot = Rotation3::from_scaled_axis(Vector3::new(0.7, -1.1, 0.4));
+    for strain in [1e-3, 1e-4] {
+        // Small strain, then a large rigid rotation and translation.
+        let stretch = Matrix3::new(
+            1.0 + strain,
+            0.5 * strain,
+            0.0,
+            0.0,
+            1.0 - 0.3 * strain,
+            0.2 * strain,
+            0.1 * strain,
+            0.0,
+            1.0 + 0.7 * strain,
+        );
+        let x: Vec<_> = mesh
+            .nodes
+            .iter()
+            .map(|p| rot * (stretch * p) + Vector3::new(5.0, -3.0, 2.0))
+            .collect();
+        tetra.update_rotations(&x);
+        let k = tetra.element_stiffness(0);
+        let fd = fd_tangent(&mut tetra, &x, 1e-6);
+        let err = (k - fd).abs().max() / k.abs().max();
+        println!("strain {strain:e}: |K − K_fd| / |K| = {err:.2e}");
+        // K = R K0 Rᵀ neglects dR/dx, whose contribution is O(strain).
+        assert!(
+            err < 20.0 * strain,
+            "strain {strain:e}: relative error {err:e}"
+        );
+    }
+}
+
+#[test]
+fn rigid_rotation_of_the_whole_gel_by_90_degrees_creates_no_internal_force() {
+    let mesh = box_mesh(
+        Vector3::new(260.0, -30.0, 0.0),
+        Vector3::new(340.0, 30.0, 60.0),
+        600,
+    );
+    let mut model = GelModel::try_new(mesh.clone(), &[], &GelParams::default()).unwrap();
+    let rot = Rotation3::from_axis_angle(&Vector3::y_axis(), std::f64::consts::FRAC_PI_2);
+    let centre = Vector3::new(300.0, 0.0, 30.0);
+    for (p, p0) in model.positions_mut().iter_mut().zip(&mesh.nodes) {
+        *p = rot * (p0 - centre) + centre + Vector3::new(1.0, 2.0, 3.0);
+    }
+    let f = model.compute_internal_forces();
+    let fmax = f.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    // Scale: the force a 1 mm displacement of one node would produce.
+    let k_scale = GEL.young_modulus * 10.0;
+    assert!(
+        fmax < 1e-10 * k_scale,
+        "rigid rotation produced internal force {fmax:e} N"
+    );
+    for e in 0..model.tetra().len() {
+        assert!((model.tetra().rotation(e) - rot.matrix()).abs().max() < 1e-12);
+    }
+}
+
+#[test]
+fn polar_decomposition_handles_rotation_stretch_and_reflection() {
+    let r = Rotation3::from_scaled_axis(Vector3::new(0.3, 2.0, -0.5)).into_inner();
+    let s = Matrix3::new(1.2, 0.1, 0.0, 0.1, 0.9, 0.05, 0.0, 0.05, 1.1);
+    let got = rotation_from_deformation(&(r * s));
+    assert!((got - r).abs().max() < 1e-12);
+    // Inverted: reflect through the plane of the smallest stretch: R stays proper and finite.
+    let f = r * Matrix3::from_diagonal(&Vector3::new(1.5, 1.0, -0.2));
+    let got = rotation_from_deformation(&f);
+    assert!((got.determinant() - 1.0).abs() < 1e-12);
+    assert!(
+        (got - r).abs().max() < 1e-12,
+        "inverted element keeps the rotation of its proper part"
+    );
+    // Flattened and collapsed elements stay finite.
+    for f in [
+        Matrix3::from_diagonal(&Vector3::new(1.0, 1.0, 0.0)),
+        Matrix3::from_diagonal(&Vector3::new(1.0, 0.0, 0.0)),
+        Matrix3::zeros(),
+    ] {
+        let got = rotation_from_deformation(&f);
+        assert!(got.iter().all(|v| v.is_finite()) && (got.determinant() - 1.0).abs() < 1e-12);
+    }
+}
+
+#[test]
+fn inverted_element_pushes_back_and_stays_finite() {
+    let mesh = one_tet();
+    let mut tetra = CorotationalTetra::try_new(&mesh, &GEL, Kinematics::Corotational).unwrap();
+    let mut x = mesh.nodes.clone();
+    x[3].z = -3.0; // node 3 pushed through the opposite face
+    tetra.update_rotations(&x);
+    let f = tetra.element_internal_force(0, &x);
+    assert!(f.iter().all(|v| v.iter().all(|c| c.is_finite())));
+    // The restoring force on node 3 (−f_int) points back up (+z).
+    assert!(
+        -f[3].z > 0.0,
+        "restoring force on the inverted node: {:?}",
+        -f[3]
+    );
+}
+
+fn gravity_like_load(model: &GelModel, fz: f64) -> Vec<f64> {
+    let mut f = vec![0.0; model.dof_count()];
+    for i in 0..model.positions().len() {
+        f[3 * i + 2] = fz;
+    }
+    f
+}
+
+#[test]
+fn static_and_quasi_static_steps_converge_to_the_same_equilibrium() {
+    let mesh = box_mesh_with_divisions(
+        Vector3::zeros(),
+        Vector3::new(40.0, 20.0, 20.0),
+        BoxDivisions {
+            nx: 6,
+            ny: 3,
+            nz: 3,
+        },
+    );
+    let bottom = mesh.nodes_on_plane(2, 0.0, 1e-9);
+    let mut stat = GelModel::try_new(mesh.clone(), &bottom, &GelParams::default()).unwrap();
+    let dynamic = GelParams {
+        time_step: Some(0.01),
+        density: 1e-8,
+        ..GelParams::default()
+    };
+    let mut quasi = GelModel::try_new(mesh, &bottom, &dynamic).unwrap();
+    let f = gravity_like_load(&stat, -1e-3);
+    let mut last_static = f64::INFINITY;
+    for _ in 0..30 {
+        let dx = stat.free_motion(&f).unwrap().to_vec();
+        stat.apply_displacement(&dx).unwrap();
+        last_static = dx.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    }
+    let umax = stat
+        .positions()
+        .iter()
+        .zip(&stat.mesh().nodes)
+        .map(|(a, b)| (a - b).norm())
+        .fold(0.0, f64::max);
+    println!("static: last step {last_static:e} mm, max displacement {umax:.3} mm");
+    assert!(last_static < 1e-10 * umax.max(1.0));
+    let mut last = f64::INFINITY;
+    let mut steps = 0;
+    for _ in 0..1000 {
+        steps += 1;
+        let dx = quasi.free_motion(&f).unwrap().to_vec();
+        quasi.apply_displacement(&dx).unwrap();
+        last = dx.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        if last < 1e-12 {
+            break;
+        }
+    }
+    println!("quasi-static: {steps} steps, last {last:e} mm");
+    assert!(
+        last < 1e-11,
+        "quasi-static steps did not settle: last step {last:e} mm"
+    );
+    let diff = stat
+        .positions()
+        .iter()
+        .zip(quasi.positions())
+        .map(|(a, b)| (a - b).norm())
+        .fold(0.0, f64::max);
+    assert!(
+        diff < 1e-8,
+        "static and quasi-static equilibria differ by {diff:e} mm"
+    );
+    // Fixed nodes did not move.
+    for &n in stat.fixed_nodes() {
+        assert_eq!(stat.positions()[n], stat.mesh().nodes[n]);
+    }
+}
+
+#[test]
+fn factor_reuse_counts_age_and_solve_uses_the_current_factor() {
+    let mesh = box_mesh_with_divisions(
+        Vector3::zeros(),
+        Vector3::new(20.0, 20.0, 20.0),
+        BoxDivisions {
+            nx: 3,
+            ny: 3,
+            nz: 3,
+        },
+    );
+    let bottom = mesh.nodes_on_plane(2, 0.0, 1e-9);
+    let mut model = GelModel::try_new(
+        mesh,
+        &bottom,
+        &GelParams {
+            refactor_every: 3,
+            ..GelParams::default()
+        },
+    )
+    .unwrap();
+    let f = gravity_like_load(&model, -1e-4);
+    let mut ages = Vec::new();
+    for _ in 0..5 {
+        model.free_motion(&f).unwrap();
+        ages.push(model.factor_age().unwrap());
+    }
+    assert_eq!(ages, vec![0, 1, 2, 0, 1]);
+    model.request_refactor();
+    model.free_motion(&f).unwrap();
+    assert_eq!(model.factor_age(), Some(0));
+    // solve(rhs) reproduces the last free motion for rhs = f_ext − f_int.
+    let f_int = model.compute_internal_forces().to_vec();
+    let dx = model.last_free_motion().to_vec();
+    let mut rhs: Vec<f64> = f.iter().zip(&f_int).map(|(a, b)| a - b).collect();
+    model.solve(&mut rhs).unwrap();
+    let err = rhs
+        .iter()
+        .zip(&dx)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0, f64::max);
+    assert!(err < 1e-12);
+    // Several columns at once equal one by one.
+    let mut cols = [rhs.clone(), f.clone()].concat();
+    for k in 0..model.dof_count() {
+        cols[k] = f[k] - f_int[k];
+    }
+    model.solve_columns(&mut cols, 2).unwrap();
+    let mut single = f.clone();
+    model.solve(&mut single).unwrap();
+    let n = model.dof_count();
+    assert!(
+        cols[..n]
+            .iter()
+            .zip(&dx)
+            .all(|(a, b)| (a - b).abs() < 1e-12)
+    );
+    assert!(
+        cols[n..]
+            .iter()
+            .zip(&single)
+            .all(|(a, b)| (a - b).abs() < 1e-12)
+    );
+    // Bad input is an error, not a panic.
+    assert!(model.free_motion(&f[1..]).is_err());
+    let mut bad = f.clone();
+    bad[0] = f64::NAN;
+    assert!(model.free_motion(&bad).is_err());
+}
