@@ -1,1 +1,112 @@
-fn main() {}
+//! Free-motion costs of the gel at the benchmark box x ∈ [260, 340], y ∈ [−30, 30],
+//! z ∈ [0, 60] mm (bottom clamped), deformed by a seeded random displacement so that the
+//! element rotations are non-trivial:
+//!
+//! - `assemble_gel_<n>_nodes`: corotational update (polar decompositions), internal forces and
+//!   the values of `K + M/h²` written into the fixed pattern;
+//! - `factor_gel_<n>_nodes`: the numeric sparse Cholesky factorisation (symbolic done once);
+//! - `solve_gel_<n>_nodes`: one solve with the current factor;
+//! - `free_motion_needle_40_beams`: one full needle step (forces, Hessians, factor, solve).
+//!
+//! Run: `cargo bench -p needle-host --bench free_motion` (add `-- --quick` for a fast pass).
+
+use criterion::{Criterion, criterion_group, criterion_main};
+use nalgebra::{Isometry3, Vector3};
+use needle_host::fem::Elasticity;
+use needle_host::fem::beam::BeamSection;
+use needle_host::free_motion::{GelModel, GelParams, NeedleModel, NeedleParams};
+use needle_host::mesh::box_mesh;
+use std::hint::black_box;
+
+/// Deterministic pseudo-random numbers in [−1, 1) (64-bit LCG, fixed seed).
+struct Lcg(u64);
+
+impl Lcg {
+    fn next(&mut self) -> f64 {
+        self.0 = self
+            .0
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        ((self.0 >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
+    }
+}
+
+fn gel(target: usize) -> GelModel {
+    let mesh = box_mesh(
+        Vector3::new(260.0, -30.0, 0.0),
+        Vector3::new(340.0, 30.0, 60.0),
+        target,
+    );
+    let bottom = mesh.nodes_on_plane(2, 0.0, 1e-9);
+    let params = GelParams {
+        time_step: Some(0.01),
+        ..GelParams::default()
+    };
+    let mut model = GelModel::try_new(mesh, &bottom, &params).expect("valid benchmark gel");
+    let mut rng = Lcg(0x5eed_0001 + target as u64);
+    let dx: Vec<f64> = (0..model.dof_count()).map(|_| 0.3 * rng.next()).collect();
+    model.apply_displacement(&dx).expect("finite displacement");
+    model.refactor().expect("SPD");
+    model
+}
+
+fn bench_gel(c: &mut Criterion) {
+    for target in [600, 1100, 1500, 1800, 5000, 20_000] {
+        let mut model = gel(target);
+        let n = model.positions().len();
+        let mut group = c.benchmark_group("gel");
+        if target >= 5000 {
+            group.sample_size(10);
+        }
+        group.bench_function(format!("assemble_gel_{target}_nodes"), |b| {
+            b.iter(|| model.assemble())
+        });
+        group.bench_function(format!("factor_gel_{target}_nodes"), |b| {
+            b.iter(|| model.factorize().expect("SPD"))
+        });
+        let mut rng = Lcg(0xbeef + target as u64);
+        let rhs: Vec<f64> = (0..model.dof_count()).map(|_| rng.next()).collect();
+        let mut x = rhs.clone();
+        group.bench_function(format!("solve_gel_{target}_nodes"), |b| {
+            b.iter(|| {
+                x.copy_from_slice(&rhs);
+                model.solve(black_box(&mut x)).expect("factorised");
+            })
+        });
+        group.finish();
+        eprintln!(
+            "gel target {target}: {n} nodes, {} tets, {} free dofs",
+            model.tetra().len(),
+            model.free_dof_count()
+        );
+    }
+}
+
+fn bench_needle(c: &mut Criterion) {
+    let section = BeamSection {
+        elasticity: Elasticity {
+            young_modulus: 200_000.0,
+            poisson_ratio: 0.3,
+        },
+        outer_diameter: 1.0,
+        inner_diameter: 0.0,
+        density: 7.85e-9,
+    };
+    let params = NeedleParams {
+        section,
+        time_step: Some(0.01),
+        refactor_every: 1,
+    };
+    let mut needle = NeedleModel::straight(&Isometry3::identity(), 150.0, 40, &[], &params)
+        .expect("valid needle");
+    let mut f = vec![0.0; needle.dof_count()];
+    let tip = needle.node_count() - 1;
+    f[6 * tip + 1] = 0.1;
+    needle.free_motion(&f).expect("SPD");
+    c.bench_function("free_motion_needle_40_beams", |b| {
+        b.iter(|| black_box(needle.free_motion(&f).expect("SPD")[0]))
+    });
+}
+
+criterion_group!(benches, bench_gel, bench_needle);
+criterion_main!(benches);

@@ -116,11 +116,15 @@ impl ReducedSystem {
         }
     }
 
-    /// Adds the regularisation and factorises the assembled values.
-    fn factorize(&mut self) -> Result<(), FemError> {
+    /// Adds the regularisation `M/h²` to the diagonal of the assembled values.
+    fn add_regularization(&mut self) {
         for (k, &s) in self.diag_slots.iter().enumerate() {
             self.matrix.values[s] += self.regularization[k];
         }
+    }
+
+    /// Numeric factorisation of the assembled values.
+    fn factorize(&mut self) -> Result<(), FemError> {
         self.factor_age = None;
         self.chol.factorize(&self.matrix)?;
         self.factor_age = Some(0);
@@ -361,21 +365,36 @@ impl GelModel {
         &self.f_int
     }
 
-    /// Assembles `K(x) + M/h²` at the current positions (rotations updated) and factorises it,
-    /// whatever the reuse setting.
+    /// Corotational update and assembly: element rotations and internal forces at the current
+    /// positions, and the values of `K(x) + M/h²` written into the fixed pattern (no factorisation).
+    pub fn assemble(&mut self) {
+        self.compute_internal_forces();
+        self.write_matrix();
+    }
+
+    fn write_matrix(&mut self) {
+        self.sys.matrix.fill_zero();
+        self.tetra
+            .assemble(&self.slots, &mut self.sys.matrix.values, 1.0);
+        self.sys.add_regularization();
+    }
+
+    /// Numeric factorisation of the matrix last written by [`GelModel::assemble`] (resets the
+    /// factor age).
+    ///
+    /// # Errors
+    /// [`FemError::Linalg`] if the matrix is not positive definite.
+    pub fn factorize(&mut self) -> Result<(), FemError> {
+        self.sys.factorize()
+    }
+
+    /// [`GelModel::assemble`] then [`GelModel::factorize`], whatever the reuse setting.
     ///
     /// # Errors
     /// [`FemError::Linalg`] if the matrix is not positive definite.
     pub fn refactor(&mut self) -> Result<(), FemError> {
-        self.tetra.update_rotations(&self.positions);
-        self.assemble_and_factor()
-    }
-
-    fn assemble_and_factor(&mut self) -> Result<(), FemError> {
-        self.sys.matrix.fill_zero();
-        self.tetra
-            .assemble(&self.slots, &mut self.sys.matrix.values, 1.0);
-        self.sys.factorize()
+        self.assemble();
+        self.factorize()
     }
 
     /// One free-motion step: updates rotations and internal forces, refactorises if due, and
@@ -388,7 +407,8 @@ impl GelModel {
         check_vec("external forces", f_ext, self.dof_count())?;
         self.compute_internal_forces();
         if self.sys.needs_refactor() {
-            self.assemble_and_factor()?;
+            self.write_matrix();
+            self.sys.factorize()?;
         } else if let Some(age) = self.sys.factor_age.as_mut() {
             *age += 1;
         }
@@ -619,20 +639,35 @@ impl NeedleModel {
         &self.f_int
     }
 
-    /// Assembles and factorises `K + M/h²` at the current configuration.
+    /// Element update and assembly: internal forces and the values of `K + M/h²` at the
+    /// current configuration (no factorisation).
+    pub fn assemble(&mut self) {
+        self.compute_internal_forces();
+        self.write_matrix();
+    }
+
+    fn write_matrix(&mut self) {
+        self.sys.matrix.fill_zero();
+        self.beams
+            .assemble(&self.slots, &mut self.sys.matrix.values, 1.0);
+        self.sys.add_regularization();
+    }
+
+    /// Numeric factorisation of the matrix last written by [`NeedleModel::assemble`].
+    ///
+    /// # Errors
+    /// [`FemError::Linalg`] if the matrix is not positive definite.
+    pub fn factorize(&mut self) -> Result<(), FemError> {
+        self.sys.factorize()
+    }
+
+    /// [`NeedleModel::assemble`] then [`NeedleModel::factorize`], whatever the reuse setting.
     ///
     /// # Errors
     /// [`FemError::Linalg`] if the matrix is not positive definite.
     pub fn refactor(&mut self) -> Result<(), FemError> {
-        self.compute_internal_forces();
-        self.assemble_and_factor()
-    }
-
-    fn assemble_and_factor(&mut self) -> Result<(), FemError> {
-        self.sys.matrix.fill_zero();
-        self.beams
-            .assemble(&self.slots, &mut self.sys.matrix.values, 1.0);
-        self.sys.factorize()
+        self.assemble();
+        self.factorize()
     }
 
     /// One free-motion step: `(K + M/h²) Δx_free = f_ext − f_int`, with `f_ext` forces [N] and
@@ -645,7 +680,8 @@ impl NeedleModel {
         check_vec("external loads", f_ext, self.dof_count())?;
         self.compute_internal_forces();
         if self.sys.needs_refactor() {
-            self.assemble_and_factor()?;
+            self.write_matrix();
+            self.sys.factorize()?;
         } else if let Some(age) = self.sys.factor_age.as_mut() {
             *age += 1;
         }

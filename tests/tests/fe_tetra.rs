@@ -4,7 +4,9 @@
 
 use nalgebra::{Matrix3, Rotation3, SMatrix, SVector, Vector3};
 use needle_host::fem::Elasticity;
-use needle_host::fem::tetra::{CorotationalTetra, Kinematics, rotation_from_deformation};
+use needle_host::fem::tetra::{
+    CorotationalTetra, Kinematics, rotation_from_deformation, rotation_from_deformation_svd,
+};
 use needle_host::free_motion::{GelModel, GelParams};
 use needle_host::mesh::{BoxDivisions, TetMesh, box_mesh, box_mesh_with_divisions};
 
@@ -141,6 +143,35 @@ fn polar_decomposition_handles_rotation_stretch_and_reflection() {
     ] {
         let got = rotation_from_deformation(&f);
         assert!(got.iter().all(|v| v.is_finite()) && (got.determinant() - 1.0).abs() < 1e-12);
+    }
+}
+
+#[test]
+fn fast_polar_iteration_equals_the_svd_rotation() {
+    let mut seed = 12345u64;
+    let mut rnd = || {
+        seed = seed
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        ((seed >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
+    };
+    for k in 0..200 {
+        let amp = [1e-6, 1e-3, 0.1, 0.5][k % 4];
+        let r = Rotation3::from_scaled_axis(Vector3::new(3.0 * rnd(), 3.0 * rnd(), 3.0 * rnd()))
+            .into_inner();
+        let e = Matrix3::from_fn(|_, _| amp * rnd());
+        let f = r * (Matrix3::identity() + e);
+        if f.determinant() <= 0.0 {
+            continue;
+        }
+        let a = rotation_from_deformation(&f);
+        let b = rotation_from_deformation_svd(&f);
+        assert!(
+            (a - b).abs().max() < 1e-12,
+            "sample {k}: {:e}",
+            (a - b).abs().max()
+        );
+        assert!((a.transpose() * a - Matrix3::identity()).abs().max() < 1e-14);
     }
 }
 

@@ -51,8 +51,10 @@ pub enum Kinematics {
     Linear,
 }
 
-/// Rotation closest to the deformation gradient `f` (polar decomposition `F = R S`), computed
-/// through an SVD `F = U Σ Vᵀ` obtained from the symmetric eigen-decomposition of `FᵀF`.
+/// Rotation closest to the deformation gradient `f` (polar decomposition `F = R S`, `R = U Vᵀ`
+/// for the SVD `F = U Σ Vᵀ`). For well-shaped elements with `det F > 0` it is computed by the
+/// scaled Newton polar iteration (same factor, faster); otherwise through an SVD obtained from
+/// the symmetric eigen-decomposition of `FᵀF` ([`rotation_from_deformation_svd`]).
 ///
 /// Reflections: `V` is made a proper rotation and the last column of `U` is taken as
 /// `u₀ × u₁` (not `F v₂ / σ₂`). When `det F > 0` this is the usual polar rotation; when the
@@ -61,6 +63,43 @@ pub enum Kinematics {
 /// back to positive volume instead of blowing up. Degenerate cases stay finite: if `F` has rank
 /// one the second axis is any unit vector orthogonal to the first, if `F ≈ 0` the identity is returned.
 pub fn rotation_from_deformation(f: &Matrix3<f64>) -> Matrix3<f64> {
+    // Fast path for well-shaped, non-inverted elements: the scaled Newton iteration of Higham
+    // (X ← ½(γX + X⁻ᵀ/γ)) converges quadratically to the same orthogonal polar factor U Vᵀ;
+    // 3–4 iterations at small strain, far cheaper than an eigen-decomposition.
+    let scale3 = (f.norm_squared() / 3.0).powf(1.5);
+    if f.determinant() > 1e-3 * scale3 {
+        if let Some(r) = polar_newton(f) {
+            return r;
+        }
+    }
+    rotation_from_deformation_svd(f)
+}
+
+/// Orthogonal polar factor by the scaled Newton iteration; `None` if it does not converge.
+fn polar_newton(f: &Matrix3<f64>) -> Option<Matrix3<f64>> {
+    let mut x = *f;
+    for _ in 0..30 {
+        let inv_t = x.try_inverse()?.transpose();
+        let step = (x - inv_t).norm();
+        let gamma = if step > 1e-2 {
+            (inv_t.norm() / x.norm()).sqrt()
+        } else {
+            1.0
+        };
+        let next = (x * gamma + inv_t / gamma) * 0.5;
+        let diff = (next - x).abs().max();
+        x = next;
+        // Quadratic convergence: the error after this step is ~diff²/2, i.e. at round-off.
+        if diff <= 1e-10 {
+            return Some(x);
+        }
+    }
+    None
+}
+
+/// The SVD-based path of [`rotation_from_deformation`] (used for inverted, flat or very
+/// distorted elements, and available on its own for testing).
+pub fn rotation_from_deformation_svd(f: &Matrix3<f64>) -> Matrix3<f64> {
     let c = f.tr_mul(f);
     let eig = c.symmetric_eigen();
     let l = eig.eigenvalues;
