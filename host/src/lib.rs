@@ -9,3 +9,5 @@ pub mod mesh;
 pub mod output;
 pub mod proximity;
 pub mod scene;
+pub mod bodies;
+pub mod world;
