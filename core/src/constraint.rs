@@ -24,7 +24,7 @@
 //! set primal-dual style until the LCP conditions hold to round-off; the polish result is kept
 //! only if it is feasible, otherwise the GS iterate is returned.
 
-use crate::math::{axpy, dot, max_abs, spd_inverse_in_place};
+use crate::math::{axpy, axpy3, dot, max_abs, spd_inverse_in_place};
 use crate::payload::{
     ComplianceFrame, GroupKind, RowGroup, ValidationError, validate_compliance, validate_groups,
 };
@@ -256,7 +256,9 @@ impl<const M: usize> BlockGs<M> {
         report
     }
 
-    /// One sweep over every group; returns the largest `|W_ii Δλ_i|`.
+    /// One sweep over every group; returns the largest `|W_ii Δλ_i|`. Each group computes its
+    /// update from its own diagonal block, then applies it to `w` in one fused pass over the
+    /// group's rows of `W` (one read-modify-write of `w` per group, not per row).
     fn sweep(&mut self, w: &[[f64; M]; M], lambda: &mut [f64; M]) -> f64 {
         let m = self.m;
         let mut change = 0.0f64;
@@ -277,8 +279,14 @@ impl<const M: usize> BlockGs<M> {
                     }
                     for i in 0..n {
                         lambda[s + i] += d[i];
-                        axpy(d[i], &w[s + i][..m], &mut self.w[..m]);
                         change = change.max(libm::fabs(d[i] * self.diag[s + i]));
+                    }
+                    let mut i = 0;
+                    while i < n {
+                        let r = |k: usize| &w[s + (i + k).min(n - 1)][..m];
+                        let c = |k: usize| if i + k < n { d[i + k] } else { 0.0 };
+                        axpy3([c(0), c(1), c(2)], r(0), r(1), r(2), &mut self.w[..m]);
+                        i += 3;
                     }
                 }
                 KIND_UNILATERAL => {
@@ -293,46 +301,52 @@ impl<const M: usize> BlockGs<M> {
                 KIND_CONTACT => {
                     let new_n = (lambda[s] - self.w[s] * f[0]).max(0.0);
                     let dn = new_n - lambda[s];
-                    if dn != 0.0 {
-                        lambda[s] = new_n;
-                        axpy(dn, &w[s][..m], &mut self.w[..m]);
-                        change = change.max(libm::fabs(dn * self.diag[s]));
-                    }
+                    lambda[s] = new_n;
                     let e = Sym2::unpack(&f[1..11]);
                     let (t1, t2) = (lambda[s + 1], lambda[s + 2]);
-                    // Part of w_t independent of λ_t.
-                    let g1 = self.w[s + 1] - (e.a * t1 + e.b * t2);
-                    let g2 = self.w[s + 2] - (e.b * t1 + e.c * t2);
-                    let (x1, x2) = e.disk_minimiser(g1, g2, b.mu * lambda[s]);
+                    // w_t after the normal update, minus its λ_t part.
+                    let g1 = self.w[s + 1] + dn * w[s][s + 1] - (e.a * t1 + e.b * t2);
+                    let g2 = self.w[s + 2] + dn * w[s][s + 2] - (e.b * t1 + e.c * t2);
+                    let (x1, x2) = e.disk_minimiser(g1, g2, b.mu * new_n);
                     let (d1, d2) = (x1 - t1, x2 - t2);
-                    if d1 != 0.0 || d2 != 0.0 {
-                        lambda[s + 1] = x1;
-                        lambda[s + 2] = x2;
-                        axpy(d1, &w[s + 1][..m], &mut self.w[..m]);
-                        axpy(d2, &w[s + 2][..m], &mut self.w[..m]);
-                        change = change.max(libm::fabs(d1 * self.diag[s + 1]));
-                        change = change.max(libm::fabs(d2 * self.diag[s + 2]));
+                    lambda[s + 1] = x1;
+                    lambda[s + 2] = x2;
+                    if dn != 0.0 || d1 != 0.0 || d2 != 0.0 {
+                        axpy3(
+                            [dn, d1, d2],
+                            &w[s][..m],
+                            &w[s + 1][..m],
+                            &w[s + 2][..m],
+                            &mut self.w[..m],
+                        );
                     }
+                    change = change.max(libm::fabs(dn * self.diag[s]));
+                    change = change.max(libm::fabs(d1 * self.diag[s + 1]));
+                    change = change.max(libm::fabs(d2 * self.diag[s + 2]));
                 }
                 KIND_SLIDING => {
                     let e = Sym2::unpack(&f[0..10]);
                     let (d1, d2) = e.solve(-self.w[s], -self.w[s + 1]);
                     lambda[s] += d1;
                     lambda[s + 1] += d2;
-                    axpy(d1, &w[s][..m], &mut self.w[..m]);
-                    axpy(d2, &w[s + 1][..m], &mut self.w[..m]);
-                    change = change.max(libm::fabs(d1 * self.diag[s]));
-                    change = change.max(libm::fabs(d2 * self.diag[s + 1]));
                     let lat = libm::hypot(lambda[s], lambda[s + 1]);
                     let bound = b.mu * lat + b.r0;
                     let a = s + 2;
-                    let new = (lambda[a] - self.w[a] * f[10]).max(-bound).min(bound);
-                    let d = new - lambda[a];
-                    if d != 0.0 {
-                        lambda[a] = new;
-                        axpy(d, &w[a][..m], &mut self.w[..m]);
-                        change = change.max(libm::fabs(d * self.diag[a]));
-                    }
+                    // w_a after the lateral update.
+                    let wa = self.w[a] + d1 * w[s][a] + d2 * w[s + 1][a];
+                    let new = (lambda[a] - wa * f[10]).max(-bound).min(bound);
+                    let da = new - lambda[a];
+                    lambda[a] = new;
+                    axpy3(
+                        [d1, d2, da],
+                        &w[s][..m],
+                        &w[s + 1][..m],
+                        &w[a][..m],
+                        &mut self.w[..m],
+                    );
+                    change = change.max(libm::fabs(d1 * self.diag[s]));
+                    change = change.max(libm::fabs(d2 * self.diag[s + 1]));
+                    change = change.max(libm::fabs(da * self.diag[a]));
                 }
                 _ => {}
             }
@@ -451,6 +465,218 @@ impl<const M: usize> BlockGs<M> {
     /// The residual `w = W λ − δ` of the last solve (rows `0..m`).
     pub fn last_residual(&self) -> &[f64] {
         &self.w[..self.m]
+    }
+
+    /// Marks in `set` the rows that `lambda` leaves free (bilateral rows, unilateral/normal rows
+    /// with `λ > 0`, sticking tangential rows, axial rows strictly inside their bound); the other
+    /// rows are held at their current force.
+    fn classify(&self, lambda: &[f64; M], set: &mut ActiveSet<M>) {
+        let inside = |x: f64, bound: f64| x < bound * (1.0 - 1e-9);
+        set.n = 0;
+        let push = |set: &mut ActiveSet<M>, row: usize| {
+            set.rows[set.n] = row as u32;
+            set.n += 1;
+        };
+        for b in &self.blocks[..self.n_blocks] {
+            let s = b.start as usize;
+            match b.kind {
+                KIND_BILATERAL => (0..b.len as usize).for_each(|i| push(set, s + i)),
+                KIND_UNILATERAL => {
+                    if lambda[s] > 0.0 {
+                        push(set, s);
+                    }
+                }
+                KIND_CONTACT => {
+                    if lambda[s] > 0.0 {
+                        push(set, s);
+                        let t = libm::hypot(lambda[s + 1], lambda[s + 2]);
+                        if inside(t, b.mu * lambda[s]) {
+                            push(set, s + 1);
+                            push(set, s + 2);
+                        }
+                    }
+                }
+                KIND_SLIDING => {
+                    push(set, s);
+                    push(set, s + 1);
+                    let bound = b.mu * libm::hypot(lambda[s], lambda[s + 1]) + b.r0;
+                    if inside(libm::fabs(lambda[s + 2]), bound) {
+                        push(set, s + 2);
+                    }
+                }
+                _ => {}
+            }
+        }
+    }
+
+    /// Factors `W` restricted to the rows `lambda` leaves free (dense Cholesky, `n³/3`) and the
+    /// response of those rows to a change of the base-row violation, `Z = W_FF⁻¹ E_base`
+    /// (rows 0..6 must be bilateral and first, as in a frame). Returns `false` (and marks the set
+    /// invalid) when the restricted matrix is numerically singular or the base rows are not free.
+    pub fn factor_active_set(
+        &self,
+        w: &[[f64; M]; M],
+        lambda: &[f64; M],
+        set: &mut ActiveSet<M>,
+    ) -> bool {
+        set.valid = false;
+        self.classify(lambda, set);
+        let n = set.n;
+        if n < BASE || (0..BASE).any(|i| set.rows[i] as usize != i) {
+            return false;
+        }
+        // Row-wise (Cholesky–Banachiewicz) factorisation: every inner product runs over two
+        // contiguous rows of L.
+        for i in 0..n {
+            let ri = set.rows[i] as usize;
+            let (top, bottom) = set.chol.split_at_mut(i);
+            let li = &mut bottom[0];
+            for j in 0..i {
+                let rj = set.rows[j] as usize;
+                let lj = &top[j];
+                li[j] = (w[ri][rj] - dot(&li[..j], &lj[..j])) / lj[j];
+            }
+            let d = w[ri][ri] - dot(&li[..i], &li[..i]);
+            if !(d > 1e-14 * w[ri][ri]) {
+                return false;
+            }
+            li[i] = libm::sqrt(d);
+        }
+        for c in 0..BASE {
+            let x = &mut set.x;
+            x[..n].fill(0.0);
+            x[c] = 1.0;
+            set_solve(&set.chol, n, x);
+            for k in 0..n {
+                set.response[k][c] = x[k];
+            }
+        }
+        set.valid = true;
+        true
+    }
+
+    /// Solves exactly for the free rows of `set` with the held rows at their current force:
+    /// `λ_F = W_FF⁻¹ (δ_F − W_FH λ_H)`. Returns `false` when the set is invalid.
+    pub fn refine_on_active_set(
+        &self,
+        w: &[[f64; M]; M],
+        delta: &[f64; M],
+        lambda: &mut [f64; M],
+        set: &mut ActiveSet<M>,
+    ) -> bool {
+        if !set.valid {
+            return false;
+        }
+        let (n, m) = (set.n, self.m);
+        // Held rows: zero the free entries of a copy of λ, then W_FH λ_H = W_F· λ_held.
+        let held = &mut set.y;
+        held[..m].copy_from_slice(&lambda[..m]);
+        for k in 0..n {
+            held[set.rows[k] as usize] = 0.0;
+        }
+        for k in 0..n {
+            let r = set.rows[k] as usize;
+            set.x[k] = delta[r] - dot(&w[r][..m], &held[..m]);
+        }
+        set_solve(&set.chol, n, &mut set.x);
+        if !set.x[..n].iter().all(|v| v.is_finite()) {
+            return false;
+        }
+        for k in 0..n {
+            lambda[set.rows[k] as usize] = set.x[k];
+        }
+        true
+    }
+
+    /// Linear prediction of the solution after the base-row violation changes by `d_base`:
+    /// `λ = λ_ref + Z d_base` on the free rows, held rows unchanged (exact while no row changes
+    /// status). Returns `false` when the set is invalid (then `out = λ_ref`).
+    pub fn predict_base_change(
+        &self,
+        set: &ActiveSet<M>,
+        lambda_ref: &[f64; M],
+        d_base: &[f64; BASE],
+        out: &mut [f64; M],
+    ) -> bool {
+        let m = self.m;
+        out[..m].copy_from_slice(&lambda_ref[..m]);
+        if !set.valid {
+            return false;
+        }
+        for k in 0..set.n {
+            let z = &set.response[k];
+            let mut acc = 0.0;
+            for c in 0..BASE {
+                acc += z[c] * d_base[c];
+            }
+            out[set.rows[k] as usize] += acc;
+        }
+        true
+    }
+}
+
+const BASE: usize = crate::payload::BASE_ROWS;
+
+/// Solves `L Lᵀ x = b` in place (`L` lower, row-major, first `n × n` of `l`).
+fn set_solve<const M: usize>(l: &[[f64; M]; M], n: usize, x: &mut [f64; M]) {
+    for i in 0..n {
+        x[i] = (x[i] - dot(&l[i][..i], &x[..i])) / l[i][i];
+    }
+    // Column-oriented back substitution: row i of L is column i of Lᵀ, contiguous.
+    for i in (0..n).rev() {
+        x[i] /= l[i][i];
+        let xi = x[i];
+        axpy(-xi, &l[i][..i], &mut x[..i]);
+    }
+}
+
+/// Dense Cholesky factor of `W` restricted to the rows a solve left free, and their linear
+/// response to the 6 base rows ([`BlockGs::factor_active_set`]). `M × M` storage (≈ `8 M²`
+/// bytes): keep it inside an owning struct that lives in a `static` or a `Box`.
+///
+/// Within one inverse step only the base rows' violation changes; while no row changes status
+/// the solution is affine in it, `λ(δ_b) = λ_q + Z (δ_b − δ_b(q))`. The inverse step uses this
+/// to start each perturbed solve at its exact answer, so Gauss-Seidel only has to confirm it
+/// (or repair a status change).
+#[derive(Clone, Debug)]
+pub struct ActiveSet<const M: usize> {
+    n: usize,
+    valid: bool,
+    rows: [u32; M],
+    chol: [[f64; M]; M],
+    response: [[f64; BASE]; M],
+    x: [f64; M],
+    y: [f64; M],
+}
+
+impl<const M: usize> Default for ActiveSet<M> {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl<const M: usize> ActiveSet<M> {
+    /// An empty (invalid) set.
+    pub const fn new() -> Self {
+        Self {
+            n: 0,
+            valid: false,
+            rows: [0; M],
+            chol: [[0.0; M]; M],
+            response: [[0.0; BASE]; M],
+            x: [0.0; M],
+            y: [0.0; M],
+        }
+    }
+
+    /// Number of free rows of the last factorisation.
+    pub fn free_rows(&self) -> usize {
+        self.n
+    }
+
+    /// Whether the last factorisation succeeded.
+    pub fn is_valid(&self) -> bool {
+        self.valid
     }
 }
 

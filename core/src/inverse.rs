@@ -14,7 +14,10 @@
 //! 2. solve at the frame's `q` (warm start: the previous step's `λ`) → `λ_q`, `T(q)`;
 //! 3. if `‖T‖² ≤ tolerance`: stop, command `q` and `λ_q` (1 solve);
 //! 4. Jacobian by forward differences, column `i` from a solve at `q + δq·e_i` warm-started from
-//!    `λ_q`: `J_i = (T(q + δq e_i) − T(q)) / δq`. (The paper's eq. 14 writes the negative,
+//!    `λ_q` — more precisely from the linear prediction `λ_q + Z (δ_b(q + δq e_i) − δ_b(q))`, exact
+//!    while no row changes status, where `Z` is the response of the rows left free by the base
+//!    solve (one dense factorisation per frame, [`ActiveSet`]); Gauss-Seidel then confirms or
+//!    repairs it to full tolerance: `J_i = (T(q + δq e_i) − T(q)) / δq`. (The paper's eq. 14 writes the negative,
 //!    `(T(q) − T(q + δq_i)) / δq`, with `Δq = J⁻¹ T`; both give the same Newton step.)
 //!    The angular row is differenced through the rotation vectors whose norms are θ1 and θ2
 //!    (`dθ = φ̂ · dφ`, see [`Objective`]): differencing the angle itself is wrong once θ is
@@ -25,7 +28,7 @@
 //!    in the benchmark pose);
 //! 6. scale `Δq` uniformly so that `|Δq_i| ≤ v_max,i · dt` (keeps the Newton direction), then clamp
 //!    `q + Δq` into the joint limits; both are reported as saturation flags;
-//! 7. final solve at `q + Δq` (warm start `λ_q`) → the `λ` the host applies.
+//! 7. final solve at `q + Δq` (started from the same prediction) → the `λ` the host applies.
 //!
 //! That is 1 + 6 + 1 = 8 solves. The base solve is done at this frame's `q` rather than reusing
 //! the previous step's state as in the paper's Algorithm 1 (line 5): the previous state was
@@ -33,7 +36,7 @@
 //! free motion into `J` and into `T`. Solving at `q` with the current `W` and `δ_free` makes both
 //! ends of every difference see the same free motion.
 
-use crate::constraint::{BlockGs, GsParams, SolveReport};
+use crate::constraint::{ActiveSet, BlockGs, GsParams, SolveReport};
 use crate::kinematics::{DhChain, Pose};
 use crate::math::{angle_between, rotation_log};
 use crate::payload::{
@@ -64,6 +67,12 @@ pub struct InverseParams {
     pub gs: GsParams,
     /// Warm-start the first solve of a step from the previous step's `λ` (default true).
     pub warm_start: bool,
+    /// Use the active-set factorisation to start every solve of the step at its linear
+    /// prediction (default true; see [`ActiveSet`]). Gauss-Seidel still runs every solve to
+    /// `gs.tolerance`, so this changes the cost, not the answer.
+    pub active_set: bool,
+    /// Tolerance of the first, loose Gauss-Seidel pass that finds the active set (default 1e-6).
+    pub presolve_tolerance: f64,
 }
 
 impl Default for InverseParams {
@@ -82,6 +91,8 @@ impl Default for InverseParams {
                 polish: false,
             },
             warm_start: true,
+            active_set: true,
+            presolve_tolerance: 1e-6,
         }
     }
 }
@@ -247,9 +258,11 @@ pub fn evaluate_objective<const M: usize>(
 }
 
 /// The inverse controller: owns the robot, the tuning and every scratch buffer of a step (block
-/// factors, λ buffers), so that [`Self::step`] allocates nothing. `M` is the row capacity.
+/// factors, the active-set factor, λ buffers), so that [`Self::step`] allocates nothing. `M` is
+/// the row capacity.
 ///
-/// About `M · 0.3 KiB` (60 KiB at `M = 192`); on small stacks keep it in a `static` or a `Box`.
+/// About `8 M² + 100 M` bytes (≈ 310 KiB at `M = 192`) because of the dense active-set factor:
+/// build it in place with [`Self::init_in_place`] in a `static` or a `Box`, not on a small stack.
 #[derive(Clone, Debug)]
 pub struct Controller<const M: usize> {
     /// The robot (DH chain, limits, base and tool transforms).
@@ -262,6 +275,9 @@ pub struct Controller<const M: usize> {
     lambda_work: [f64; M],
     lambda_prev: [f64; M],
     prev_m: usize,
+    set: ActiveSet<M>,
+    set_valid: bool,
+    delta_base: [f64; 6],
 }
 
 impl<const M: usize> Controller<M> {
@@ -282,6 +298,30 @@ impl<const M: usize> Controller<M> {
             lambda_work: [0.0; M],
             lambda_prev: [0.0; M],
             prev_m: 0,
+            set: ActiveSet::new(),
+            set_valid: false,
+            delta_base: [0.0; 6],
+        }
+    }
+
+    /// Initialises a controller in place (no stack temporary) and returns it.
+    pub fn init_in_place(
+        this: &mut core::mem::MaybeUninit<Self>,
+        chain: DhChain<JOINTS>,
+        params: InverseParams,
+    ) -> &mut Self {
+        let () = Self::CAPACITY_OK;
+        let p = this.as_mut_ptr();
+        // SAFETY: every field of `Controller` (and of `BlockGs`, `ActiveSet`, `DhChain`,
+        // `InverseParams`) is a float, an integer, a `bool` or an array/struct of those, for which
+        // all-zero bytes are a valid value (`false`, `0`, `0.0`); the two fields written after are
+        // then overwritten through raw pointers without reading the old value. `p` comes from a
+        // live `&mut MaybeUninit<Self>`, so it is valid and aligned.
+        unsafe {
+            core::ptr::write_bytes(p, 0, 1);
+            core::ptr::addr_of_mut!((*p).chain).write(chain);
+            core::ptr::addr_of_mut!((*p).params).write(params);
+            this.assume_init_mut()
         }
     }
 
@@ -313,23 +353,102 @@ impl<const M: usize> Controller<M> {
 
     /// Writes `δ_base(q)` into rows 0..6 and solves into `lambda_work` (warm start: its current
     /// content); returns the tool pose and the report.
-    fn solve_at(
+    fn solve_at(&mut self, frame: &ComplianceFrame<M>, q: &[f64; JOINTS]) -> (Pose, SolveReport) {
+        let b = self.chain.tool_pose(q);
+        let d = base_violation(&b, &frame.p_free, &frame.r_free);
+        self.delta[..6].copy_from_slice(&d);
+        let rep = self.gs.solve(
+            &frame.w,
+            &self.delta,
+            &mut self.lambda_work,
+            &self.params.gs,
+        );
+        (b, rep)
+    }
+
+    /// The solve at the frame's joints into `lambda_base` (warm start: its content). With
+    /// `active_set`, a loose Gauss-Seidel pass finds which rows are free, the free rows are solved
+    /// exactly by a dense factorisation (also giving their response `Z` to the base rows), and
+    /// Gauss-Seidel confirms the result to the full tolerance (repairing any status change).
+    fn solve_base(&mut self, frame: &ComplianceFrame<M>, q: &[f64; JOINTS]) -> (Pose, SolveReport) {
+        let b = self.chain.tool_pose(q);
+        let d = base_violation(&b, &frame.p_free, &frame.r_free);
+        self.delta[..6].copy_from_slice(&d);
+        self.delta_base = d;
+        self.set_valid = false;
+        let gs = self.params.gs;
+        if !self.params.active_set {
+            let rep = self
+                .gs
+                .solve(&frame.w, &self.delta, &mut self.lambda_base, &gs);
+            return (b, rep);
+        }
+        let loose = GsParams {
+            tolerance: gs.tolerance.max(self.params.presolve_tolerance),
+            ..gs
+        };
+        let r1 = self
+            .gs
+            .solve(&frame.w, &self.delta, &mut self.lambda_base, &loose);
+        if self
+            .gs
+            .factor_active_set(&frame.w, &self.lambda_base, &mut self.set)
+        {
+            let mut trial = self.lambda_base;
+            if self
+                .gs
+                .refine_on_active_set(&frame.w, &self.delta, &mut trial, &mut self.set)
+            {
+                self.lambda_base = trial;
+            }
+        }
+        let left = GsParams {
+            max_iterations: gs.max_iterations.saturating_sub(r1.iterations),
+            ..gs
+        };
+        let r2 = self
+            .gs
+            .solve(&frame.w, &self.delta, &mut self.lambda_base, &left);
+        // A status changed during the confirmation: factor again at the final answer.
+        if r2.iterations > 2 {
+            self.gs
+                .factor_active_set(&frame.w, &self.lambda_base, &mut self.set);
+        }
+        self.set_valid = self.set.is_valid();
+        let rep = SolveReport {
+            iterations: r1.iterations + r2.iterations,
+            ..r2
+        };
+        (b, rep)
+    }
+
+    /// A solve at perturbed joints into `lambda_work`, started from the linear prediction
+    /// `λ_q + Z (δ_b(q') − δ_b(q))` when the active-set factor is valid, else from `λ_q`.
+    fn solve_perturbed(
         &mut self,
         frame: &ComplianceFrame<M>,
         q: &[f64; JOINTS],
-        into_base: bool,
     ) -> (Pose, SolveReport) {
         let b = self.chain.tool_pose(q);
         let d = base_violation(&b, &frame.p_free, &frame.r_free);
         self.delta[..6].copy_from_slice(&d);
-        let lambda = if into_base {
-            &mut self.lambda_base
+        let m = frame.rows();
+        if self.set_valid {
+            let mut dd = [0.0; 6];
+            for i in 0..6 {
+                dd[i] = d[i] - self.delta_base[i];
+            }
+            self.gs
+                .predict_base_change(&self.set, &self.lambda_base, &dd, &mut self.lambda_work);
         } else {
-            &mut self.lambda_work
-        };
-        let rep = self
-            .gs
-            .solve(&frame.w, &self.delta, lambda, &self.params.gs);
+            self.lambda_work[..m].copy_from_slice(&self.lambda_base[..m]);
+        }
+        let rep = self.gs.solve(
+            &frame.w,
+            &self.delta,
+            &mut self.lambda_work,
+            &self.params.gs,
+        );
         (b, rep)
     }
 
@@ -347,7 +466,7 @@ impl<const M: usize> Controller<M> {
         let m = frame.rows();
         self.delta[..m].copy_from_slice(&frame.delta_free[..m]);
         self.lambda_work.fill(0.0);
-        let (b, _) = self.solve_at(frame, q, false);
+        let (b, _) = self.solve_at(frame, q);
         Ok(evaluate_objective(
             frame,
             &self.lambda_work,
@@ -383,7 +502,7 @@ impl<const M: usize> Controller<M> {
         }
         let q = frame.q;
         let mut report = SolverReport::default();
-        let (b0, rep) = self.solve_at(frame, &q, true);
+        let (b0, rep) = self.solve_base(frame, &q);
         let count = |report: &mut SolverReport, r: &SolveReport| {
             report.iterations = report.iterations.saturating_add(r.iterations);
             report.solves += 1;
@@ -409,8 +528,7 @@ impl<const M: usize> Controller<M> {
             for i in 0..JOINTS {
                 let mut qi = q;
                 qi[i] += p.joint_step;
-                self.lambda_work[..m].copy_from_slice(&self.lambda_base[..m]);
-                let (bi, r) = self.solve_at(frame, &qi, false);
+                let (bi, r) = self.solve_perturbed(frame, &qi);
                 count(&mut report, &r);
                 let ti = evaluate_objective(frame, &self.lambda_work, &bi, &p);
                 for r in 0..3 {
@@ -472,8 +590,7 @@ impl<const M: usize> Controller<M> {
                 report.flags |= StatusFlags::TARGET_UNREACHABLE;
             }
             // 7. final solve at q + Δq.
-            self.lambda_work[..m].copy_from_slice(&self.lambda_base[..m]);
-            let (bf, r) = self.solve_at(frame, &q_new, false);
+            let (bf, r) = self.solve_perturbed(frame, &q_new);
             count(&mut report, &r);
             final_rep = r;
             report.objective_after = evaluate_objective(frame, &self.lambda_work, &bf, &p).t;

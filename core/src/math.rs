@@ -32,6 +32,16 @@ pub(crate) fn axpy(alpha: f64, x: &[f64], y: &mut [f64]) {
     }
 }
 
+/// `y += d0 · x0 + d1 · x1 + d2 · x2` in one pass over `y`.
+#[inline]
+pub(crate) fn axpy3(d: [f64; 3], x0: &[f64], x1: &[f64], x2: &[f64], y: &mut [f64]) {
+    let n = y.len().min(x0.len()).min(x1.len()).min(x2.len());
+    let (x0, x1, x2, y) = (&x0[..n], &x1[..n], &x2[..n], &mut y[..n]);
+    for i in 0..n {
+        y[i] += d[0] * x0[i] + d[1] * x1[i] + d[2] * x2[i];
+    }
+}
+
 /// Largest absolute entry (0 for an empty slice; NaN-safe: NaN entries are ignored).
 #[inline]
 pub(crate) fn max_abs(v: &[f64]) -> f64 {

@@ -205,7 +205,12 @@ pub fn random_frame<const M: usize>(
     let cseed = rng.next_u64();
     for r in 0..NOBS {
         for c in 0..m {
-            let base = if r < 6 { 1.0 } else { 0.05 };
+            // Tip position moves ~1 mm per mm of base violation; directions ~0.01 rad.
+            let base = match r {
+                0..3 => 1.0,
+                3..6 => 0.01,
+                _ => 0.05,
+            };
             frame.c[r][c] = base * 0.01 * hash_unit(cseed, r, c) * scale(c);
         }
     }

@@ -48,7 +48,8 @@ fn inverse_step_allocates_nothing() {
     let cmd = Command::init_in_place(&mut cm);
     let chain = DhChain::rv1a();
     let q = [0.1, 0.3, 2.0, 0.0, 0.5, 0.0];
-    let mut ctrl = Box::new(Controller::<M>::new(chain, InverseParams::default()));
+    let mut cm2 = Box::new(MaybeUninit::<Controller<M>>::uninit());
+    let ctrl = Controller::init_in_place(&mut cm2, chain, InverseParams::default());
     random_frame(frame, &chain, &q, M, 42, false);
     // Warm up (lazy statics, first-touch of anything).
     ctrl.step(frame, cmd).expect("valid frame");

@@ -31,5 +31,8 @@ pub fn command() -> Box<Command<M>> {
 
 /// A boxed RV-1A controller with default tuning.
 pub fn controller() -> Box<Controller<M>> {
-    Box::new(Controller::new(DhChain::rv1a(), InverseParams::default()))
+    let mut b = Box::new(MaybeUninit::<Controller<M>>::uninit());
+    Controller::init_in_place(&mut b, DhChain::rv1a(), InverseParams::default());
+    // SAFETY: initialised by `init_in_place`.
+    unsafe { b.assume_init() }
 }

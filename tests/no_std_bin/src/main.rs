@@ -51,8 +51,11 @@ pub extern "C" fn main(_argc: i32, _argv: *const *const u8) -> i32 {
         (
             ComplianceFrame::init_in_place(&mut *(&raw mut FRAME)),
             Command::init_in_place(&mut *(&raw mut COMMAND)),
-            (*(&raw mut CONTROLLER))
-                .write(Controller::new(DhChain::rv1a(), InverseParams::default())),
+            Controller::init_in_place(
+                &mut *(&raw mut CONTROLLER),
+                DhChain::rv1a(),
+                InverseParams::default(),
+            ),
         )
     };
     let q = [0.1, 0.3, 2.0, 0.0, 0.5, 0.0];
