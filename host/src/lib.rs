@@ -11,3 +11,4 @@ pub mod proximity;
 pub mod scene;
 pub mod bodies;
 pub mod world;
+pub mod run;

@@ -1,0 +1,212 @@
+//! `needle`: run an insertion, print its summary, write its outputs.
+//!
+//! ```sh
+//! needle run                      # the embedded complex benchmark scene, inverse controller
+//! needle run scenes/simple.toml --controller naive --out out/simple-naive
+//! ```
+
+use clap::{Parser, Subcommand, ValueEnum};
+use indicatif::{ProgressBar, ProgressStyle};
+use needle_host::run::{ControllerKind, RunOptions, planned_steps, run};
+use needle_host::scene::Scene;
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+#[derive(Parser)]
+#[command(
+    name = "needle",
+    version,
+    about = "Inverse real-time FE control of robotic needle insertion"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Run one insertion and print its summary (error, clearances, stage times).
+    Run {
+        /// A scene file, or the name of an embedded scene (`simple`, `complex`).
+        #[arg(default_value = "complex")]
+        scene: String,
+        /// Controller driving the robot.
+        #[arg(long, value_enum, default_value_t = Ctl::Inverse)]
+        controller: Ctl,
+        /// Output folder (steps.csv, summary.json, VTK files); none: print only.
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Number of steps (default: to the end of the path).
+        #[arg(long)]
+        steps: Option<usize>,
+        /// Write VTK files every N steps (needs --out; default: the scene's `output.vtk_every`).
+        #[arg(long)]
+        vtk_every: Option<usize>,
+        /// Gel mesh size (overrides the scene's box node count).
+        #[arg(long)]
+        nodes: Option<usize>,
+        /// No progress bar.
+        #[arg(long)]
+        quiet: bool,
+        /// Print the summary as JSON.
+        #[arg(long)]
+        json: bool,
+    },
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum Ctl {
+    /// The inverse FE controller (the paper's method).
+    Inverse,
+    /// A rigid needle in a rigid gel following the rest path by IK, replayed in the FE simulation.
+    Naive,
+}
+
+/// A scene from a file path or an embedded name.
+fn load_scene(arg: &str) -> Result<Scene, String> {
+    let p = Path::new(arg);
+    if p.exists() || arg.ends_with(".toml") {
+        return Scene::load(p).map_err(|e| e.to_string());
+    }
+    Scene::builtin(arg).ok_or_else(|| {
+        format!(
+            "`{arg}` is neither a scene file nor an embedded scene ({})",
+            Scene::BUILTIN.join(", ")
+        )
+    })
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    match cli.command {
+        Command::Run {
+            scene,
+            controller,
+            out,
+            steps,
+            vtk_every,
+            nodes,
+            quiet,
+            json,
+        } => {
+            let mut scene = match load_scene(&scene) {
+                Ok(s) => s,
+                Err(e) => {
+                    eprintln!("error: {e}");
+                    return ExitCode::from(2);
+                }
+            };
+            if let Some(n) = nodes {
+                match scene.gel.box_mesh.as_mut() {
+                    Some(b) => b.nodes = n,
+                    None => {
+                        eprintln!("error: --nodes needs a scene with a generated `gel.box` mesh");
+                        return ExitCode::from(2);
+                    }
+                }
+            }
+            let opts = RunOptions {
+                controller: match controller {
+                    Ctl::Inverse => ControllerKind::Inverse,
+                    Ctl::Naive => ControllerKind::Naive,
+                },
+                steps,
+                out_dir: out,
+                vtk_every,
+            };
+            let total = steps.unwrap_or_else(|| planned_steps(&scene)) as u64;
+            let bar = if quiet {
+                ProgressBar::hidden()
+            } else {
+                ProgressBar::new(total)
+            };
+            bar.set_style(
+                ProgressStyle::with_template(
+                    "{elapsed_precise} [{bar:40}] {pos}/{len} steps  {msg}",
+                )
+                .unwrap_or_else(|_| ProgressStyle::default_bar())
+                .progress_chars("=> "),
+            );
+            let result = run(&scene, &opts, |r| {
+                bar.set_position(r.step as u64 + 1);
+                bar.set_message(format!(
+                    "depth {:5.1} mm  error {:6.3} mm",
+                    r.depth, r.error
+                ));
+            });
+            bar.finish_and_clear();
+            let result = match result {
+                Ok(r) => r,
+                Err(e) => {
+                    eprintln!("error: {e}");
+                    return ExitCode::FAILURE;
+                }
+            };
+            let s = &result.summary;
+            if json {
+                match serde_json::to_string_pretty(s) {
+                    Ok(t) => println!("{t}"),
+                    Err(e) => {
+                        eprintln!("error: {e}");
+                        return ExitCode::FAILURE;
+                    }
+                }
+            } else {
+                println!(
+                    "scene {} · controller {:?} · {} gel nodes",
+                    s.scene, s.controller, s.gel_nodes
+                );
+                println!(
+                    "steps {}/{}{}",
+                    s.steps,
+                    s.steps_planned,
+                    match &s.stopped {
+                        Some(r) => format!(" — stopped: {r}"),
+                        None => String::new(),
+                    }
+                );
+                println!(
+                    "tracking error inside the gel: mean {:.3} mm, max {:.3} mm, final {:.3} mm (depth {:.1} mm, puncture at step {})",
+                    s.e_mean_mm,
+                    s.e_max_mm,
+                    s.e_final_mm,
+                    s.final_depth_mm,
+                    s.puncture_step.map_or("—".to_string(), |k| k.to_string())
+                );
+                for c in &s.clearances {
+                    println!(
+                        "clearance to {}: {:.3} mm{}",
+                        c.name,
+                        c.min_mm,
+                        if c.min_mm < 0.0 { "  (HIT)" } else { "" }
+                    );
+                }
+                let t = &s.timing;
+                println!(
+                    "time per step [ms] median / p99: total {:.2} / {:.2} · FM {:.2} / {:.2} · CD {:.2} / {:.2} · CC {:.2} / {:.2} · SC {:.2} / {:.2} · corr {:.2} / {:.2}",
+                    t.total.median_ms,
+                    t.total.p99_ms,
+                    t.fm.median_ms,
+                    t.fm.p99_ms,
+                    t.cd.median_ms,
+                    t.cd.p99_ms,
+                    t.cc.median_ms,
+                    t.cc.p99_ms,
+                    t.sc.median_ms,
+                    t.sc.p99_ms,
+                    t.correction.median_ms,
+                    t.correction.p99_ms
+                );
+                println!(
+                    "Gauss-Seidel sweeps per step: mean {:.1}, max {} ({} steps hit the cap)",
+                    s.gs_iterations_mean, s.gs_iterations_max, s.gs_not_converged_steps
+                );
+            }
+            if s.completed {
+                ExitCode::SUCCESS
+            } else {
+                ExitCode::from(3)
+            }
+        }
+    }
+}
