@@ -60,6 +60,8 @@ pub enum SimError {
     NonFinite(&'static str),
     /// The set-up is impossible (e.g. the start pose is out of the robot's reach).
     Setup(String),
+    /// A command from a remote core does not answer the current frame (what differs).
+    Command(&'static str),
 }
 
 impl fmt::Display for SimError {
@@ -73,6 +75,7 @@ impl fmt::Display for SimError {
             ),
             Self::NonFinite(what) => write!(f, "the simulation became non-finite ({what})"),
             Self::Setup(s) => write!(f, "set-up failed: {s}"),
+            Self::Command(why) => write!(f, "the command does not answer the frame: {why}"),
         }
     }
 }
@@ -138,6 +141,13 @@ pub struct SlidingPoint {
     pub at: Embedded,
     /// Cached Cartesian columns of the gel point with the current gel factor.
     cols: Option<PointColumns>,
+}
+
+/// What [`World::prepare`] leaves for [`World::finish`].
+#[derive(Clone, Copy, Debug, Default)]
+struct Pending {
+    c: f64,
+    times: StageTimes,
 }
 
 /// Scratch of the open-loop mode (a single solve at given joints).
@@ -244,6 +254,7 @@ pub struct World<G: GelBody, N: NeedleBody> {
     frame: Box<ComplianceFrame<ROWS>>,
     command: Box<Command<ROWS>>,
     open_loop: Box<OpenLoop>,
+    pending: Pending,
     set: ConstraintSet,
     gel_dx: Vec<f64>,
     needle_dx: Vec<f64>,
@@ -382,6 +393,7 @@ impl<G: GelBody, N: NeedleBody> World<G, N> {
             r_off,
             frame: boxed_frame(),
             command: boxed_command(),
+            pending: Pending::default(),
             open_loop: Box::new(OpenLoop {
                 gs: BlockGs::new(),
                 delta: [0.0; ROWS],
@@ -464,7 +476,8 @@ impl<G: GelBody, N: NeedleBody> World<G, N> {
     }
 
     /// One step with target `c`; `joints`: open-loop (the joints are given, a single constraint
-    /// solve) instead of the inverse update.
+    /// solve) instead of the inverse update. Runs the core in-process; a transport uses
+    /// [`Self::prepare`] and [`Self::apply_command`] instead.
     ///
     /// # Errors
     /// As [`Self::step`].
@@ -473,6 +486,23 @@ impl<G: GelBody, N: NeedleBody> World<G, N> {
         c: f64,
         joints: Option<[f64; JOINTS]>,
     ) -> Result<StepReport, SimError> {
+        self.prepare(c)?;
+        // 4. Constraint solves: the core's inverse step, or one solve at given joints.
+        let t3 = Instant::now();
+        let report = match joints {
+            None => self.controller.step(&self.frame, &mut self.command)?,
+            Some(q) => self.solve_open_loop(q)?,
+        };
+        self.pending.times.sc = ms(t3);
+        self.finish(report)
+    }
+
+    /// Stages 1–3 of a step with target `c`: free motion, proximity, compliance. Returns the
+    /// frame for the core (stage 4), whose answer goes to [`Self::apply_command`].
+    ///
+    /// # Errors
+    /// A failed solve, a capacity overflow, a non-finite state or an invalid frame.
+    pub fn prepare(&mut self, c: f64) -> Result<&ComplianceFrame<ROWS>, SimError> {
         let mut times = StageTimes::default();
 
         // 1. Free motion.
@@ -535,14 +565,42 @@ impl<G: GelBody, N: NeedleBody> World<G, N> {
         self.set.fill_frame(&observations, &mut self.frame);
         self.fill_frame_header()?;
         times.cc = ms(t2);
+        self.pending = Pending { c, times };
+        Ok(&self.frame)
+    }
 
-        // 4. Constraint solves: the core's inverse step, or one solve at given joints.
-        let t3 = Instant::now();
-        let report = match joints {
-            None => self.controller.step(&self.frame, &mut self.command)?,
-            Some(q) => self.solve_open_loop(q)?,
+    /// Stage 5 for a command received from a core elsewhere (another thread or process):
+    /// checks that it answers the current frame, then applies it.
+    ///
+    /// # Errors
+    /// [`SimError::Command`] when the command does not answer the frame (version, sequence,
+    /// row count) or carries non-finite values; the state is then unchanged.
+    pub fn apply_command(&mut self, cmd: &Command<ROWS>, sc_ms: f64) -> Result<StepReport, SimError> {
+        let f = &self.frame;
+        let why = if cmd.version != needle_core::payload::VERSION {
+            Some("version")
+        } else if cmd.frame_sequence != f.sequence {
+            Some("sequence")
+        } else if cmd.m != f.m {
+            Some("row count")
+        } else if !cmd.q.iter().chain(&cmd.lambda[..f.rows()]).all(|v| v.is_finite()) {
+            Some("non-finite value")
+        } else {
+            None
         };
-        times.sc = ms(t3);
+        if let Some(why) = why {
+            return Err(SimError::Command(why));
+        }
+        *self.command = *cmd;
+        self.pending.times.sc = sc_ms;
+        let report = cmd.report;
+        self.finish(report)
+    }
+
+    /// Stage 5 and the interaction bookkeeping, with the command in `self.command`.
+    fn finish(&mut self, report: SolverReport) -> Result<StepReport, SimError> {
+        let Pending { c, mut times } = self.pending;
+        let rows = self.set.rows();
 
         // 5. Corrective motion.
         let t4 = Instant::now();
