@@ -1,0 +1,158 @@
+//! What travels through shared memory: the core's [`ComplianceFrame`] and [`Command`] wrapped in
+//! `#[repr(transparent)]` newtypes that implement iceoryx2's [`ZeroCopySend`], and two small
+//! `#[repr(C)]` user headers that say which host session and which robot set-up a sample
+//! belongs to.
+//!
+//! The orphan rule forbids implementing iceoryx2's trait on `needle-core`'s types here, and the
+//! core stays free of iceoryx2: the newtypes are the one place where the two meet. They add no
+//! field, so the layout is exactly the core's (`#[repr(C)]`, integers, floats and fixed arrays
+//! only — any bit pattern is a valid value, which is why every received frame is still checked
+//! with [`ComplianceFrame::validate`]).
+//!
+//! The iceoryx2 type names are versioned ([`FRAME_TYPE_NAME`], [`COMMAND_TYPE_NAME`]); iceoryx2
+//! also compares size and alignment when a service is opened, so two builds with different row
+//! capacities `M` refuse to talk to each other instead of misreading each other.
+
+use core::fmt::Write as _;
+use iceoryx2::prelude::ZeroCopySend;
+use needle_core::inverse::InverseParams;
+use needle_core::kinematics::DhChain;
+use needle_core::payload::{COMMAND_TYPE_NAME, Command, ComplianceFrame, FRAME_TYPE_NAME, JOINTS};
+
+/// A compliance frame as an iceoryx2 payload (host → core), layout identical to
+/// [`ComplianceFrame<M>`].
+#[derive(Debug)]
+#[repr(transparent)]
+pub struct FramePayload<const M: usize>(pub ComplianceFrame<M>);
+
+// SAFETY: `ComplianceFrame<M>` is `#[repr(C)]` and holds only `u32`, `u64`, `f64` and fixed
+// arrays of those (`RowGroup` included, itself `#[repr(C)]` of the same): no pointer, no
+// reference, no process-local handle, every bit pattern valid. The newtype is transparent.
+unsafe impl<const M: usize> ZeroCopySend for FramePayload<M> {
+    unsafe fn type_name() -> &'static str {
+        FRAME_TYPE_NAME
+    }
+}
+
+/// A command as an iceoryx2 payload (core → host), layout identical to [`Command<M>`].
+#[derive(Debug)]
+#[repr(transparent)]
+pub struct CommandPayload<const M: usize>(pub Command<M>);
+
+// SAFETY: as for `FramePayload`: `Command<M>` and `SolverReport` are `#[repr(C)]` integers,
+// floats and fixed arrays only.
+unsafe impl<const M: usize> ZeroCopySend for CommandPayload<M> {
+    unsafe fn type_name() -> &'static str {
+        COMMAND_TYPE_NAME
+    }
+}
+
+/// User header of every frame sample.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, ZeroCopySend)]
+#[type_name("needle.FrameHeader.v1")]
+#[repr(C)]
+pub struct FrameHeader {
+    /// Identifier of the host run that published the frame (new at every host start). Frame
+    /// sequences increase within a session; a new session is a restarted host.
+    pub session: u64,
+    /// [`setup_fingerprint`] of the robot chain and inverse tuning the host expects the core to
+    /// use; a controller configured differently rejects the frame.
+    pub setup: u64,
+}
+
+/// What a command sample is.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[repr(u32)]
+pub enum CommandKind {
+    /// The answer to the frame `(session, frame_sequence)`: the host applies it.
+    Answer = 1,
+    /// Hold: no fresh frame within the deadline, the robot is held at `q` (zero joint
+    /// velocity). For the robot; a host ignores it.
+    Hold = 2,
+}
+
+impl CommandKind {
+    /// Decodes a raw kind; `None` for an unknown value.
+    pub const fn from_raw(raw: u32) -> Option<Self> {
+        match raw {
+            1 => Some(Self::Answer),
+            2 => Some(Self::Hold),
+            _ => None,
+        }
+    }
+}
+
+/// User header of every command sample.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, ZeroCopySend)]
+#[type_name("needle.CommandHeader.v1")]
+#[repr(C)]
+pub struct CommandHeader {
+    /// The host session of the frame this command answers (or of the last frame, for a hold).
+    pub session: u64,
+    /// Raw [`CommandKind`].
+    pub kind: u32,
+    /// Reserved, 0.
+    pub reserved: u32,
+}
+
+/// A 64-bit fingerprint of a robot chain and inverse tuning (FNV-1a over their `Debug` text,
+/// which prints every `f64` exactly): both processes compute it from their own set-up, and a
+/// controller refuses frames from a host that expects another robot or another tuning.
+pub fn setup_fingerprint(chain: &DhChain<JOINTS>, params: &InverseParams) -> u64 {
+    let mut text = String::new();
+    // Writing into a String cannot fail.
+    let _ = write!(text, "{chain:?}|{params:?}");
+    fnv1a(text.as_bytes())
+}
+
+fn fnv1a(bytes: &[u8]) -> u64 {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for b in bytes {
+        h ^= u64::from(*b);
+        h = h.wrapping_mul(0x0000_0100_0000_01b3);
+    }
+    h
+}
+
+/// A fresh, non-zero session identifier (process id, wall clock and a counter).
+pub fn new_session_id() -> u64 {
+    use std::sync::atomic::{AtomicU64, Ordering};
+    static COUNTER: AtomicU64 = AtomicU64::new(0);
+    let now = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_nanos() as u64);
+    let mut bytes = [0u8; 24];
+    bytes[..8].copy_from_slice(&u64::from(std::process::id()).to_le_bytes());
+    bytes[8..16].copy_from_slice(&now.to_le_bytes());
+    bytes[16..].copy_from_slice(&COUNTER.fetch_add(1, Ordering::Relaxed).to_le_bytes());
+    fnv1a(&bytes).max(1)
+}
+
+/// Copies the used part of `src` into `dst` (a frame initialised with
+/// [`ComplianceFrame::init_in_place`]): the header, the used groups, the `m × m` block of `W`,
+/// the `m` used columns of `C` and the used rows of `δ_free`. The unused entries of `dst` keep
+/// their zeros. `m` is clamped to the capacity, so a corrupt `src` cannot make it read out of
+/// bounds.
+pub fn copy_used<const M: usize>(src: &ComplianceFrame<M>, dst: &mut ComplianceFrame<M>) {
+    let m = src.rows().min(M);
+    let g = (src.group_count as usize).min(M);
+    dst.version = src.version;
+    dst.m = src.m;
+    dst.sequence = src.sequence;
+    dst.group_count = src.group_count;
+    dst.inserted = src.inserted;
+    dst.groups[..g].copy_from_slice(&src.groups[..g]);
+    for (d, s) in dst.w.iter_mut().zip(&src.w).take(m) {
+        d[..m].copy_from_slice(&s[..m]);
+    }
+    dst.delta_free[..m].copy_from_slice(&src.delta_free[..m]);
+    dst.p_free = src.p_free;
+    dst.r_free = src.r_free;
+    dst.o_free = src.o_free;
+    for (d, s) in dst.c.iter_mut().zip(&src.c) {
+        d[..m].copy_from_slice(&s[..m]);
+    }
+    dst.insertion_depth = src.insertion_depth;
+    dst.q = src.q;
+    dst.dt = src.dt;
+}

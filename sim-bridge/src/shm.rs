@@ -1,0 +1,388 @@
+//! iceoryx2 publish-subscribe services for frames (host → core) and commands (core → host).
+//!
+//! Two services per bridge instance, named `<instance>/needle.ComplianceFrame.v1` and
+//! `<instance>/needle.Command.v1` (the instance defaults to `needle`; tests use a unique one so
+//! that parallel runs never meet). Both sides open-or-create them with the same settings
+//! ([`frame_service`], [`command_service`]).
+//!
+//! Zero copy: the host loans an uninitialised frame sample, initialises it in place
+//! ([`ComplianceFrame::init_in_place`]) and writes the frame into it ([`SharedMemoryHost::publish_with`]);
+//! the controller steps directly on the received sample and writes its command into a loaned
+//! command sample. Nothing of `W` crosses the stack. (`needle serve` builds its frame in the
+//! `World`, so it copies the used `m × m` block once into the sample with [`copy_used`]; see
+//! [`SharedMemoryHost::publish`].)
+//!
+//! Stale resources: a process killed without cleaning up leaves its node behind. Every side
+//! starts by removing the resources of dead nodes ([`cleanup_dead_nodes`], iceoryx2's node list
+//! with `NodeState::Dead`), and the controller does it again whenever it loses its host.
+
+use crate::payload::{
+    CommandHeader, CommandKind, CommandPayload, FrameHeader, FramePayload, copy_used,
+};
+use crate::transport::{ExchangeReport, Transport, TransportError};
+use core::time::Duration;
+use iceoryx2::port::publisher::Publisher;
+use iceoryx2::port::subscriber::Subscriber;
+use iceoryx2::prelude::*;
+use iceoryx2::service::port_factory::publish_subscribe::PortFactory;
+use needle_core::payload::{COMMAND_TYPE_NAME, Command, ComplianceFrame, FRAME_TYPE_NAME};
+use std::time::Instant;
+
+/// Default deadline on both sides: a controller without a fresh frame, or a host without a
+/// command, for this long holds (50 ms).
+pub const DEFAULT_DEADLINE: Duration = Duration::from_millis(50);
+
+/// How a side waits for the other while polling.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Wait {
+    /// Sleep this long between polls (cheap on a shared machine; adds up to one period of
+    /// latency plus the OS timer slack).
+    Sleep(Duration),
+    /// Yield the CPU between polls (lowest latency, burns a core; benches).
+    Spin,
+}
+
+impl Default for Wait {
+    fn default() -> Self {
+        Self::Sleep(Duration::from_micros(50))
+    }
+}
+
+/// Where and how the two processes meet.
+#[derive(Clone, Debug, PartialEq)]
+pub struct BridgeConfig {
+    /// Service-name prefix shared by the host and its controller (default `needle`).
+    pub instance: String,
+    /// Deadline after which the waiting side holds (default [`DEFAULT_DEADLINE`]).
+    pub deadline: Duration,
+    /// How to wait between polls.
+    pub wait: Wait,
+    /// Install iceoryx2's SIGINT/SIGTERM handler so that Ctrl-C ends the loops cleanly (the
+    /// binaries; off in libraries and tests).
+    pub handle_signals: bool,
+}
+
+impl Default for BridgeConfig {
+    fn default() -> Self {
+        Self {
+            instance: "needle".into(),
+            deadline: DEFAULT_DEADLINE,
+            wait: Wait::default(),
+            handle_signals: false,
+        }
+    }
+}
+
+impl BridgeConfig {
+    /// The frame service's name, `<instance>/needle.ComplianceFrame.v1`.
+    pub fn frame_service_name(&self) -> String {
+        format!("{}/{FRAME_TYPE_NAME}", self.instance)
+    }
+
+    /// The command service's name, `<instance>/needle.Command.v1`.
+    pub fn command_service_name(&self) -> String {
+        format!("{}/{COMMAND_TYPE_NAME}", self.instance)
+    }
+}
+
+/// The iceoryx2 service flavour used: inter-process, single-threaded ports.
+pub type Ipc = ipc::Service;
+
+/// Frame publisher port.
+pub type FramePublisher<const M: usize> = Publisher<Ipc, FramePayload<M>, FrameHeader>;
+/// Frame subscriber port.
+pub type FrameSubscriber<const M: usize> = Subscriber<Ipc, FramePayload<M>, FrameHeader>;
+/// Command publisher port.
+pub type CommandPublisher<const M: usize> = Publisher<Ipc, CommandPayload<M>, CommandHeader>;
+/// Command subscriber port.
+pub type CommandSubscriber<const M: usize> = Subscriber<Ipc, CommandPayload<M>, CommandHeader>;
+
+pub(crate) fn ipc_err(what: &'static str) -> impl FnOnce(String) -> TransportError {
+    move |detail| TransportError::Ipc { what, detail }
+}
+
+fn dbg<E: core::fmt::Debug>(e: E) -> String {
+    format!("{e:?}")
+}
+
+/// Creates a node named `name` (visible in `iox2 node list`).
+///
+/// # Errors
+/// [`TransportError::Ipc`] when the name is invalid or the node cannot be created.
+pub fn create_node(name: &str, cfg: &BridgeConfig) -> Result<Node<Ipc>, TransportError> {
+    let node_name = NodeName::new(name)
+        .map_err(dbg)
+        .map_err(ipc_err("node name"))?;
+    NodeBuilder::new()
+        .name(&node_name)
+        .signal_handling_mode(if cfg.handle_signals {
+            SignalHandlingMode::HandleTerminationRequests
+        } else {
+            SignalHandlingMode::Disabled
+        })
+        .create::<Ipc>()
+        .map_err(dbg)
+        .map_err(ipc_err("create node"))
+}
+
+/// Removes the shared-memory resources of every dead node (a process killed without cleaning
+/// up) and returns how many were removed.
+pub fn cleanup_dead_nodes(node: &Node<Ipc>) -> u64 {
+    node.try_cleanup_dead_nodes().cleanups
+}
+
+/// Opens or creates the frame service of `cfg` (same settings on both sides: 2 publishers so a
+/// restarted host can join before the dead one is cleaned, 2 subscribers, buffer of 2 with
+/// overwrite of the oldest — the controller only ever wants the newest frame).
+///
+/// # Errors
+/// [`TransportError::Ipc`], e.g. when the service exists with an incompatible payload (another
+/// capacity `M` or layout version).
+pub fn frame_service<const M: usize>(
+    node: &Node<Ipc>,
+    cfg: &BridgeConfig,
+) -> Result<PortFactory<Ipc, FramePayload<M>, FrameHeader>, TransportError> {
+    let name = ServiceName::new(&cfg.frame_service_name())
+        .map_err(dbg)
+        .map_err(ipc_err("frame service name"))?;
+    node.service_builder(&name)
+        .publish_subscribe::<FramePayload<M>>()
+        .user_header::<FrameHeader>()
+        .max_publishers(2)
+        .max_subscribers(2)
+        .history_size(0)
+        .subscriber_max_buffer_size(2)
+        .subscriber_max_borrowed_samples(2)
+        .enable_safe_overflow(true)
+        .open_or_create()
+        .map_err(dbg)
+        .map_err(ipc_err("open frame service"))
+}
+
+/// Opens or creates the command service of `cfg` (buffer of 8: hold commands at the
+/// controller's rate may queue while a host is busy; it drains them).
+///
+/// # Errors
+/// As [`frame_service`].
+pub fn command_service<const M: usize>(
+    node: &Node<Ipc>,
+    cfg: &BridgeConfig,
+) -> Result<PortFactory<Ipc, CommandPayload<M>, CommandHeader>, TransportError> {
+    let name = ServiceName::new(&cfg.command_service_name())
+        .map_err(dbg)
+        .map_err(ipc_err("command service name"))?;
+    node.service_builder(&name)
+        .publish_subscribe::<CommandPayload<M>>()
+        .user_header::<CommandHeader>()
+        .max_publishers(2)
+        .max_subscribers(2)
+        .history_size(0)
+        .subscriber_max_buffer_size(8)
+        .subscriber_max_borrowed_samples(2)
+        .enable_safe_overflow(true)
+        .open_or_create()
+        .map_err(dbg)
+        .map_err(ipc_err("open command service"))
+}
+
+/// Counters of the host side.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct HostStats {
+    /// Frame samples published (repeats after a timeout included).
+    pub frames_published: u64,
+    /// Commands accepted (answering the frame waited for).
+    pub commands_accepted: u64,
+    /// Commands that failed validation (never applied).
+    pub commands_rejected: u64,
+    /// Commands for another frame or session, and hold commands (ignored).
+    pub commands_stale: u64,
+    /// Exchanges that ran into the deadline.
+    pub timeouts: u64,
+    /// Dead nodes whose resources were removed at start.
+    pub dead_nodes_cleaned: u64,
+}
+
+/// The host's end: publishes frames in place and waits, lock-step, for the command answering
+/// each one.
+pub struct SharedMemoryHost<const M: usize> {
+    node: Node<Ipc>,
+    frames: FramePublisher<M>,
+    commands: CommandSubscriber<M>,
+    header: FrameHeader,
+    cfg: BridgeConfig,
+    stats: HostStats,
+}
+
+impl<const M: usize> SharedMemoryHost<M> {
+    /// Connects a host: cleans the resources of dead nodes, opens both services, creates the
+    /// ports, and starts a new session. `setup` is the [`crate::setup_fingerprint`] of the robot
+    /// and tuning the controller must use.
+    ///
+    /// # Errors
+    /// [`TransportError::Ipc`] when a node, service or port cannot be created.
+    pub fn connect(cfg: &BridgeConfig, setup: u64) -> Result<Self, TransportError> {
+        let node = create_node("needle-host", cfg)?;
+        let dead_nodes_cleaned = cleanup_dead_nodes(&node);
+        let frames = frame_service::<M>(&node, cfg)?
+            .publisher_builder()
+            .create()
+            .map_err(dbg)
+            .map_err(ipc_err("create frame publisher"))?;
+        let commands = command_service::<M>(&node, cfg)?
+            .subscriber_builder()
+            .create()
+            .map_err(dbg)
+            .map_err(ipc_err("create command subscriber"))?;
+        Ok(Self {
+            node,
+            frames,
+            commands,
+            header: FrameHeader {
+                session: crate::payload::new_session_id(),
+                setup,
+            },
+            cfg: cfg.clone(),
+            stats: HostStats {
+                dead_nodes_cleaned,
+                ..HostStats::default()
+            },
+        })
+    }
+
+    /// This host's session identifier.
+    pub fn session(&self) -> u64 {
+        self.header.session
+    }
+
+    /// The counters so far.
+    pub fn stats(&self) -> HostStats {
+        self.stats
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &BridgeConfig {
+        &self.cfg
+    }
+
+    /// Publishes one frame written in place: loans a sample, initialises it
+    /// ([`ComplianceFrame::init_in_place`], all zero, current version) and lets `fill` write the
+    /// frame straight into shared memory. Returns the frame's sequence.
+    ///
+    /// # Errors
+    /// [`TransportError::Ipc`] when loaning or sending fails.
+    pub fn publish_with(
+        &mut self,
+        fill: impl FnOnce(&mut ComplianceFrame<M>),
+    ) -> Result<u64, TransportError> {
+        let mut sample = self
+            .frames
+            .loan_uninit()
+            .map_err(dbg)
+            .map_err(ipc_err("loan frame"))?;
+        *sample.user_header_mut() = self.header;
+        let slot = sample.payload_mut();
+        // SAFETY: `FramePayload<M>` is `#[repr(transparent)]` over `ComplianceFrame<M>`, so the
+        // two `MaybeUninit`s have the same layout.
+        let slot = unsafe {
+            &mut *(slot as *mut core::mem::MaybeUninit<FramePayload<M>>)
+                .cast::<core::mem::MaybeUninit<ComplianceFrame<M>>>()
+        };
+        let frame = ComplianceFrame::init_in_place(slot);
+        fill(frame);
+        let sequence = frame.sequence;
+        // SAFETY: `init_in_place` initialised every byte of the payload.
+        let sample = unsafe { sample.assume_init() };
+        sample.send().map_err(dbg).map_err(ipc_err("send frame"))?;
+        self.stats.frames_published += 1;
+        Ok(sequence)
+    }
+
+    /// Publishes a frame built elsewhere (e.g. in `needle_host`'s `World`), copying its used part
+    /// ([`copy_used`]: the `m × m` block of `W`, `m` columns of `C`) into the sample.
+    ///
+    /// # Errors
+    /// As [`Self::publish_with`].
+    pub fn publish(&mut self, frame: &ComplianceFrame<M>) -> Result<u64, TransportError> {
+        self.publish_with(|dst| copy_used(frame, dst))
+    }
+
+    /// Waits up to the deadline for the command answering frame `sequence` of this session and
+    /// copies it into `cmd`. Everything else received meanwhile is discarded and counted.
+    ///
+    /// # Errors
+    /// [`TransportError::Timeout`] after the deadline; [`TransportError::Ipc`] if receiving
+    /// fails or a termination signal arrived (with `handle_signals`).
+    pub fn wait_command(
+        &mut self,
+        sequence: u64,
+        cmd: &mut Command<M>,
+    ) -> Result<ExchangeReport, TransportError> {
+        let start = Instant::now();
+        let mut report = ExchangeReport::default();
+        loop {
+            while let Some(sample) = self
+                .commands
+                .receive()
+                .map_err(dbg)
+                .map_err(ipc_err("receive command"))?
+            {
+                let h = *sample.user_header();
+                let c = &sample.payload().0;
+                if CommandKind::from_raw(h.kind) != Some(CommandKind::Answer)
+                    || h.session != self.header.session
+                    || c.frame_sequence != sequence
+                {
+                    self.stats.commands_stale += 1;
+                    report.stale_commands += 1;
+                    continue;
+                }
+                if c.validate().is_err() {
+                    self.stats.commands_rejected += 1;
+                    report.rejected_commands += 1;
+                    continue;
+                }
+                *cmd = *c;
+                self.stats.commands_accepted += 1;
+                report.round_trip = start.elapsed();
+                return Ok(report);
+            }
+            let waited = start.elapsed();
+            if waited >= self.cfg.deadline {
+                self.stats.timeouts += 1;
+                return Err(TransportError::Timeout { waited });
+            }
+            pause(&self.node, self.cfg.wait)?;
+        }
+    }
+}
+
+/// One pause between polls; `Err` on a termination request (SIGINT/SIGTERM with
+/// `handle_signals`).
+pub(crate) fn pause(node: &Node<Ipc>, wait: Wait) -> Result<(), TransportError> {
+    match wait {
+        Wait::Sleep(d) => node
+            .wait(d)
+            .map_err(dbg)
+            .map_err(ipc_err("termination requested")),
+        Wait::Spin => {
+            std::thread::yield_now();
+            Ok(())
+        }
+    }
+}
+
+impl<const M: usize> Transport<M> for SharedMemoryHost<M> {
+    /// Publishes `frame` (one copy of its used part, see [`SharedMemoryHost::publish`]) and waits
+    /// for the command answering it.
+    fn exchange(
+        &mut self,
+        frame: &ComplianceFrame<M>,
+        cmd: &mut Command<M>,
+    ) -> Result<ExchangeReport, TransportError> {
+        let start = Instant::now();
+        let sequence = self.publish(frame)?;
+        let mut r = self.wait_command(sequence, cmd)?;
+        r.round_trip = start.elapsed();
+        Ok(r)
+    }
+}

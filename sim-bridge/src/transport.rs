@@ -1,0 +1,149 @@
+//! The one interface between the host's step and the core: hand a frame over, get the command
+//! that answers it. The host loop (`needle_host::run`) is the same code whichever way the frame
+//! travels:
+//!
+//! - [`InProcess`]: the core's [`Controller::step`] called directly (tests, reports,
+//!   deterministic benches; bit-identical results run to run);
+//! - [`crate::shm::SharedMemoryHost`]: the frame is published through iceoryx2 shared memory and
+//!   the host waits, lock-step, for the command answering that frame's sequence from a controller
+//!   in another process.
+
+use core::fmt;
+use core::time::Duration;
+use needle_core::inverse::{Controller, InverseParams, StepError};
+use needle_core::kinematics::DhChain;
+use needle_core::payload::{Command, ComplianceFrame, JOINTS, ValidationError};
+use std::time::Instant;
+
+/// How one exchange went.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct ExchangeReport {
+    /// Time from handing the frame over to holding the answer.
+    pub round_trip: Duration,
+    /// Commands received during this exchange that failed validation (discarded).
+    pub rejected_commands: u32,
+    /// Commands received that answer another frame or another host session, or hold commands
+    /// (discarded).
+    pub stale_commands: u32,
+}
+
+/// Why an exchange failed.
+#[derive(Clone, Debug, PartialEq)]
+#[non_exhaustive]
+pub enum TransportError {
+    /// No command answering the frame arrived within the deadline. The frame stays published;
+    /// calling `exchange` again with the same frame publishes it again and keeps waiting.
+    Timeout {
+        /// How long the exchange waited.
+        waited: Duration,
+    },
+    /// The in-process core rejected the frame or failed.
+    Core(StepError),
+    /// A payload failed validation before it was sent.
+    Invalid(ValidationError),
+    /// The shared-memory middleware failed (creating a node, a service or a port, loaning,
+    /// sending, receiving).
+    Ipc {
+        /// What was being done.
+        what: &'static str,
+        /// iceoryx2's error.
+        detail: String,
+    },
+}
+
+impl fmt::Display for TransportError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::Timeout { waited } => write!(
+                f,
+                "no command answering the frame within {:.1} ms",
+                waited.as_secs_f64() * 1e3
+            ),
+            Self::Core(e) => write!(f, "core: {e}"),
+            Self::Invalid(e) => write!(f, "invalid payload: {e}"),
+            Self::Ipc { what, detail } => write!(f, "shared memory: {what}: {detail}"),
+        }
+    }
+}
+
+impl std::error::Error for TransportError {
+    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+        match self {
+            Self::Core(e) => Some(e),
+            Self::Invalid(e) => Some(e),
+            _ => None,
+        }
+    }
+}
+
+impl From<StepError> for TransportError {
+    fn from(e: StepError) -> Self {
+        Self::Core(e)
+    }
+}
+
+/// Carries one frame to the core and its command back.
+///
+/// # Example
+/// ```
+/// use needle_bridge::{InProcess, Transport};
+/// use needle_core::inverse::InverseParams;
+/// use needle_core::kinematics::DhChain;
+/// use needle_core::payload::{Command, ComplianceFrame};
+///
+/// let mut t = InProcess::<24>::new(DhChain::rv1a(), InverseParams::default());
+/// let mut f = Box::<ComplianceFrame<24>>::new_uninit();
+/// let frame = ComplianceFrame::init_in_place(&mut f); // all zero: fails validation
+/// let mut c = Box::<Command<24>>::new_uninit();
+/// let cmd = Command::init_in_place(&mut c);
+/// assert!(t.exchange(frame, cmd).is_err());
+/// ```
+pub trait Transport<const M: usize> {
+    /// Hands `frame` to the core and writes the command answering it (same `sequence`, checked
+    /// with [`Command::validate`]) into `cmd`.
+    ///
+    /// # Errors
+    /// [`TransportError`]; `cmd` is then unspecified (the host must not apply it).
+    fn exchange(
+        &mut self,
+        frame: &ComplianceFrame<M>,
+        cmd: &mut Command<M>,
+    ) -> Result<ExchangeReport, TransportError>;
+}
+
+/// The core in the same process: [`Controller::step`] on the caller's frame, no copy.
+pub struct InProcess<const M: usize> {
+    controller: Box<Controller<M>>,
+}
+
+impl<const M: usize> InProcess<M> {
+    /// A core for `chain` with tuning `params` (the controller, ≈ 300 KiB at `M = 192`, is built
+    /// in place on the heap).
+    pub fn new(chain: DhChain<JOINTS>, params: InverseParams) -> Self {
+        let mut b = Box::<Controller<M>>::new_uninit();
+        Controller::init_in_place(&mut b, chain, params);
+        // SAFETY: `init_in_place` initialised every field.
+        let controller = unsafe { b.assume_init() };
+        Self { controller }
+    }
+
+    /// The core's controller (tuning, warm-start state).
+    pub fn controller(&mut self) -> &mut Controller<M> {
+        &mut self.controller
+    }
+}
+
+impl<const M: usize> Transport<M> for InProcess<M> {
+    fn exchange(
+        &mut self,
+        frame: &ComplianceFrame<M>,
+        cmd: &mut Command<M>,
+    ) -> Result<ExchangeReport, TransportError> {
+        let t = Instant::now();
+        self.controller.step(frame, cmd)?;
+        Ok(ExchangeReport {
+            round_trip: t.elapsed(),
+            ..ExchangeReport::default()
+        })
+    }
+}
