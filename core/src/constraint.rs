@@ -38,6 +38,10 @@ pub struct GsParams {
     pub max_iterations: u32,
     /// Polish frictionless problems on the active set (see the module docs).
     pub polish: bool,
+    /// Over-relaxation ω of the bilateral, unilateral and sliding updates (projected SOR;
+    /// 1 = plain Gauss-Seidel, useful range 1…1.5). The fixed point — the solution — does not
+    /// depend on ω; contact (Coulomb) groups always use ω = 1.
+    pub relaxation: f64,
 }
 
 impl Default for GsParams {
@@ -46,6 +50,7 @@ impl Default for GsParams {
             tolerance: 1e-10,
             max_iterations: 400,
             polish: false,
+            relaxation: 1.0,
         }
     }
 }
@@ -240,7 +245,12 @@ impl<const M: usize> BlockGs<M> {
         };
         let mut report = SolveReport::default();
         while report.iterations < params.max_iterations {
-            let change = self.sweep(w, lambda);
+            let omega = if params.relaxation.is_finite() {
+                params.relaxation.clamp(0.1, 1.9)
+            } else {
+                1.0
+            };
+            let change = self.sweep(w, lambda, omega);
             report.iterations += 1;
             report.residual = change / scale;
             if !(report.residual > tol) {
@@ -259,7 +269,7 @@ impl<const M: usize> BlockGs<M> {
     /// One sweep over every group; returns the largest `|W_ii Δλ_i|`. Each group computes its
     /// update from its own diagonal block, then applies it to `w` in one fused pass over the
     /// group's rows of `W` (one read-modify-write of `w` per group, not per row).
-    fn sweep(&mut self, w: &[[f64; M]; M], lambda: &mut [f64; M]) -> f64 {
+    fn sweep(&mut self, w: &[[f64; M]; M], lambda: &mut [f64; M], omega: f64) -> f64 {
         let m = self.m;
         let mut change = 0.0f64;
         for bi in 0..self.n_blocks {
@@ -275,7 +285,7 @@ impl<const M: usize> BlockGs<M> {
                         for j in 0..n {
                             acc += f[i * n + j] * self.w[s + j];
                         }
-                        d[i] = -acc;
+                        d[i] = -omega * acc;
                     }
                     for i in 0..n {
                         lambda[s + i] += d[i];
@@ -290,7 +300,7 @@ impl<const M: usize> BlockGs<M> {
                     }
                 }
                 KIND_UNILATERAL => {
-                    let new = (lambda[s] - self.w[s] * f[0]).max(0.0);
+                    let new = (lambda[s] - omega * self.w[s] * f[0]).max(0.0);
                     let d = new - lambda[s];
                     if d != 0.0 {
                         lambda[s] = new;
@@ -327,6 +337,7 @@ impl<const M: usize> BlockGs<M> {
                 KIND_SLIDING => {
                     let e = Sym2::unpack(&f[0..10]);
                     let (d1, d2) = e.solve(-self.w[s], -self.w[s + 1]);
+                    let (d1, d2) = (omega * d1, omega * d2);
                     lambda[s] += d1;
                     lambda[s + 1] += d2;
                     let lat = libm::hypot(lambda[s], lambda[s + 1]);
@@ -334,7 +345,7 @@ impl<const M: usize> BlockGs<M> {
                     let a = s + 2;
                     // w_a after the lateral update.
                     let wa = self.w[a] + d1 * w[s][a] + d2 * w[s + 1][a];
-                    let new = (lambda[a] - wa * f[10]).max(-bound).min(bound);
+                    let new = (lambda[a] - omega * wa * f[10]).max(-bound).min(bound);
                     let da = new - lambda[a];
                     lambda[a] = new;
                     axpy3(
@@ -467,12 +478,15 @@ impl<const M: usize> BlockGs<M> {
         &self.w[..self.m]
     }
 
-    /// Marks in `set` the rows that `lambda` leaves free (bilateral rows, unilateral/normal rows
-    /// with `λ > 0`, sticking tangential rows, axial rows strictly inside their bound); the other
-    /// rows are held at their current force.
+    /// Sorts the rows by what `lambda` does with them: *free* rows (bilateral rows,
+    /// unilateral/normal rows with `λ > 0`, sticking tangential rows, axial rows strictly inside
+    /// their bound), *tied* rows (axial rows on their bound: `λ_a = ±(μ_n |λ_l| + r_0)` follows
+    /// the lateral rows) and *held* rows (the rest: zero, or a sliding contact's tangential
+    /// force, kept at its current value).
     fn classify(&self, lambda: &[f64; M], set: &mut ActiveSet<M>) {
         let inside = |x: f64, bound: f64| x < bound * (1.0 - 1e-9);
         set.n = 0;
+        set.n_tied = 0;
         let push = |set: &mut ActiveSet<M>, row: usize| {
             set.rows[set.n] = row as u32;
             set.n += 1;
@@ -481,27 +495,32 @@ impl<const M: usize> BlockGs<M> {
             let s = b.start as usize;
             match b.kind {
                 KIND_BILATERAL => (0..b.len as usize).for_each(|i| push(set, s + i)),
-                KIND_UNILATERAL => {
-                    if lambda[s] > 0.0 {
-                        push(set, s);
-                    }
-                }
-                KIND_CONTACT => {
-                    if lambda[s] > 0.0 {
-                        push(set, s);
-                        let t = libm::hypot(lambda[s + 1], lambda[s + 2]);
-                        if inside(t, b.mu * lambda[s]) {
-                            push(set, s + 1);
-                            push(set, s + 2);
-                        }
+                KIND_UNILATERAL if lambda[s] > 0.0 => push(set, s),
+                KIND_CONTACT if lambda[s] > 0.0 => {
+                    push(set, s);
+                    let t = libm::hypot(lambda[s + 1], lambda[s + 2]);
+                    if inside(t, b.mu * lambda[s]) {
+                        push(set, s + 1);
+                        push(set, s + 2);
                     }
                 }
                 KIND_SLIDING => {
+                    let k = set.n;
                     push(set, s);
                     push(set, s + 1);
-                    let bound = b.mu * libm::hypot(lambda[s], lambda[s + 1]) + b.r0;
+                    let lat = libm::hypot(lambda[s], lambda[s + 1]);
+                    let bound = b.mu * lat + b.r0;
                     if inside(libm::fabs(lambda[s + 2]), bound) {
                         push(set, s + 2);
+                    } else if lat > 0.0 {
+                        let sigma = if lambda[s + 2] < 0.0 { -1.0 } else { 1.0 };
+                        let c = sigma * b.mu / lat;
+                        set.tied[set.n_tied] = Tied {
+                            row: (s + 2) as u32,
+                            lat: k as u32,
+                            c: [c * lambda[s], c * lambda[s + 1]],
+                        };
+                        set.n_tied += 1;
                     }
                 }
                 _ => {}
@@ -509,10 +528,12 @@ impl<const M: usize> BlockGs<M> {
         }
     }
 
-    /// Factors `W` restricted to the rows `lambda` leaves free (dense Cholesky, `n³/3`) and the
-    /// response of those rows to a change of the base-row violation, `Z = W_FF⁻¹ E_base`
-    /// (rows 0..6 must be bilateral and first, as in a frame). Returns `false` (and marks the set
-    /// invalid) when the restricted matrix is numerically singular or the base rows are not free.
+    /// Factors the linearised problem of the rows `lambda` leaves free: with `u = dλ_F`,
+    /// `K u = dδ_F`, `K = W_FF + W_FT G` where `G` gives the tied axial rows' change from their
+    /// lateral rows (`dλ_a = ±μ_n λ̂_l · dλ_l`). `K` is not symmetric: dense LU with partial
+    /// pivoting (`2n³/3`). Also computes the free rows' response to the 6 base rows,
+    /// `Z = K⁻¹ E_base` (rows 0..6 must be bilateral and first, as in a frame). Returns `false`
+    /// (set invalid) when `K` is numerically singular or the base rows are not free.
     pub fn factor_active_set(
         &self,
         w: &[[f64; M]; M],
@@ -525,38 +546,69 @@ impl<const M: usize> BlockGs<M> {
         if n < BASE || (0..BASE).any(|i| set.rows[i] as usize != i) {
             return false;
         }
-        // Row-wise (Cholesky–Banachiewicz) factorisation: every inner product runs over two
-        // contiguous rows of L.
+        let mut kmax = 0.0f64;
         for i in 0..n {
             let ri = set.rows[i] as usize;
-            let (top, bottom) = set.chol.split_at_mut(i);
-            let li = &mut bottom[0];
-            for j in 0..i {
-                let rj = set.rows[j] as usize;
-                let lj = &top[j];
-                li[j] = (w[ri][rj] - dot(&li[..j], &lj[..j])) / lj[j];
+            let k = &mut set.lu[i];
+            for j in 0..n {
+                k[j] = w[ri][set.rows[j] as usize];
             }
-            let d = w[ri][ri] - dot(&li[..i], &li[..i]);
-            if !(d > 1e-14 * w[ri][ri]) {
+            for t in &set.tied[..set.n_tied] {
+                let wa = w[ri][t.row as usize];
+                k[t.lat as usize] += t.c[0] * wa;
+                k[t.lat as usize + 1] += t.c[1] * wa;
+            }
+            kmax = kmax.max(max_abs(&k[..n]));
+        }
+        // Right-looking LU, row-major, rows swapped physically.
+        for k in 0..n {
+            let mut p = k;
+            let mut best = libm::fabs(set.lu[k][k]);
+            for i in (k + 1)..n {
+                let v = libm::fabs(set.lu[i][k]);
+                if v > best {
+                    best = v;
+                    p = i;
+                }
+            }
+            if !(best > 1e-14 * kmax) {
                 return false;
             }
-            li[i] = libm::sqrt(d);
+            set.perm[k] = p as u32;
+            if p != k {
+                set.lu.swap(p, k);
+            }
+            let (top, bottom) = set.lu.split_at_mut(k + 1);
+            let pivot_row = &top[k];
+            let inv = 1.0 / pivot_row[k];
+            for row in bottom[..n - k - 1].iter_mut() {
+                let l = row[k] * inv;
+                row[k] = l;
+                if l != 0.0 {
+                    axpy(-l, &pivot_row[k + 1..n], &mut row[k + 1..n]);
+                }
+            }
         }
         for c in 0..BASE {
             let x = &mut set.x;
             x[..n].fill(0.0);
             x[c] = 1.0;
-            set_solve(&set.chol, n, x);
+            lu_solve(&set.lu, &set.perm, n, x);
             for k in 0..n {
                 set.response[k][c] = x[k];
             }
         }
-        set.valid = true;
-        true
+        set.valid = set.response[..n]
+            .iter()
+            .all(|z| z.iter().all(|v| v.is_finite()));
+        set.valid
     }
 
-    /// Solves exactly for the free rows of `set` with the held rows at their current force:
-    /// `λ_F = W_FF⁻¹ (δ_F − W_FH λ_H)`. Returns `false` when the set is invalid.
+    /// One Newton step on the free and tied rows of `set` from `lambda` (held rows fixed):
+    /// `u = K⁻¹ (δ_F − (W λ)_F)`, `λ_F += u`, then each tied row is put back exactly on its bound
+    /// `±(μ_n |λ_l| + r_0)`. From a Gauss-Seidel iterate with the right statuses this lands on the
+    /// solution to round-off (the bound is the only nonlinearity). Returns `false` when the set
+    /// is invalid or the step is not finite (then `lambda` is unchanged).
     pub fn refine_on_active_set(
         &self,
         w: &[[f64; M]; M],
@@ -568,29 +620,39 @@ impl<const M: usize> BlockGs<M> {
             return false;
         }
         let (n, m) = (set.n, self.m);
-        // Held rows: zero the free entries of a copy of λ, then W_FH λ_H = W_F· λ_held.
-        let held = &mut set.y;
-        held[..m].copy_from_slice(&lambda[..m]);
-        for k in 0..n {
-            held[set.rows[k] as usize] = 0.0;
-        }
         for k in 0..n {
             let r = set.rows[k] as usize;
-            set.x[k] = delta[r] - dot(&w[r][..m], &held[..m]);
+            set.x[k] = delta[r] - dot(&w[r][..m], &lambda[..m]);
         }
-        set_solve(&set.chol, n, &mut set.x);
+        lu_solve(&set.lu, &set.perm, n, &mut set.x);
         if !set.x[..n].iter().all(|v| v.is_finite()) {
             return false;
         }
         for k in 0..n {
-            lambda[set.rows[k] as usize] = set.x[k];
+            lambda[set.rows[k] as usize] += set.x[k];
+        }
+        for t in &set.tied[..set.n_tied] {
+            let a = t.row as usize;
+            let l = set.rows[t.lat as usize] as usize;
+            let (mu, r0) = self.sliding_law(a);
+            let sigma = if lambda[a] < 0.0 { -1.0 } else { 1.0 };
+            lambda[a] = sigma * (mu * libm::hypot(lambda[l], lambda[l + 1]) + r0);
         }
         true
     }
 
+    /// `(μ_n, r_0)` of the sliding group owning axial row `a`.
+    fn sliding_law(&self, a: usize) -> (f64, f64) {
+        self.blocks[..self.n_blocks]
+            .iter()
+            .find(|b| b.kind == KIND_SLIDING && b.start as usize + 2 == a)
+            .map_or((0.0, 0.0), |b| (b.mu, b.r0))
+    }
+
     /// Linear prediction of the solution after the base-row violation changes by `d_base`:
-    /// `λ = λ_ref + Z d_base` on the free rows, held rows unchanged (exact while no row changes
-    /// status). Returns `false` when the set is invalid (then `out = λ_ref`).
+    /// `λ_F = λ_ref,F + Z d_base`, tied rows follow their lateral rows, held rows unchanged
+    /// (exact to first order while no row changes status). Returns `false` when the set is
+    /// invalid (then `out = λ_ref`).
     pub fn predict_base_change(
         &self,
         set: &ActiveSet<M>,
@@ -603,13 +665,19 @@ impl<const M: usize> BlockGs<M> {
         if !set.valid {
             return false;
         }
+        let mut du = [0.0f64; M];
         for k in 0..set.n {
             let z = &set.response[k];
             let mut acc = 0.0;
             for c in 0..BASE {
                 acc += z[c] * d_base[c];
             }
+            du[k] = acc;
             out[set.rows[k] as usize] += acc;
+        }
+        for t in &set.tied[..set.n_tied] {
+            let l = t.lat as usize;
+            out[t.row as usize] += t.c[0] * du[l] + t.c[1] * du[l + 1];
         }
         true
     }
@@ -617,36 +685,51 @@ impl<const M: usize> BlockGs<M> {
 
 const BASE: usize = crate::payload::BASE_ROWS;
 
-/// Solves `L Lᵀ x = b` in place (`L` lower, row-major, first `n × n` of `l`).
-fn set_solve<const M: usize>(l: &[[f64; M]; M], n: usize, x: &mut [f64; M]) {
-    for i in 0..n {
-        x[i] = (x[i] - dot(&l[i][..i], &x[..i])) / l[i][i];
+/// Solves `K x = b` in place from the LU factors (`P K = L U`, `L` unit lower and `U` upper
+/// stored together row-major, `perm[k]` the row swapped with `k` at step `k`).
+fn lu_solve<const M: usize>(lu: &[[f64; M]; M], perm: &[u32; M], n: usize, x: &mut [f64; M]) {
+    for k in 0..n {
+        x.swap(k, perm[k] as usize);
     }
-    // Column-oriented back substitution: row i of L is column i of Lᵀ, contiguous.
+    for i in 0..n {
+        x[i] -= dot(&lu[i][..i], &x[..i]);
+    }
+    // Column-oriented back substitution would need columns of U; rows are contiguous, so
+    // solve row by row from the bottom.
     for i in (0..n).rev() {
-        x[i] /= l[i][i];
-        let xi = x[i];
-        axpy(-xi, &l[i][..i], &mut x[..i]);
+        let s = dot(&lu[i][i + 1..n], &x[i + 1..n]);
+        x[i] = (x[i] - s) / lu[i][i];
     }
 }
 
-/// Dense Cholesky factor of `W` restricted to the rows a solve left free, and their linear
-/// response to the 6 base rows ([`BlockGs::factor_active_set`]). `M × M` storage (≈ `8 M²`
-/// bytes): keep it inside an owning struct that lives in a `static` or a `Box`.
+/// A tied axial row: `dλ_row = c · dλ_(lat, lat+1)` (indices of the lateral rows in the free set).
+#[derive(Clone, Copy, Debug, Default)]
+struct Tied {
+    row: u32,
+    lat: u32,
+    c: [f64; 2],
+}
+
+/// Dense LU factor of the linearised problem of the rows a solve left free (tied sliding rows
+/// folded in) and their linear response to the 6 base rows
+/// ([`BlockGs::factor_active_set`]). `M × M` storage (≈ `8 M²` bytes): keep it inside an
+/// owning struct that lives in a `static` or a `Box`.
 ///
 /// Within one inverse step only the base rows' violation changes; while no row changes status
-/// the solution is affine in it, `λ(δ_b) = λ_q + Z (δ_b − δ_b(q))`. The inverse step uses this
-/// to start each perturbed solve at its exact answer, so Gauss-Seidel only has to confirm it
-/// (or repair a status change).
+/// the solution follows it affinely to first order, `λ(δ_b) ≈ λ_q + Z (δ_b − δ_b(q))`. The
+/// inverse step uses this to start each perturbed solve next to its answer, so Gauss-Seidel
+/// only has to confirm it (or repair a status change).
 #[derive(Clone, Debug)]
 pub struct ActiveSet<const M: usize> {
     n: usize,
+    n_tied: usize,
     valid: bool,
     rows: [u32; M],
-    chol: [[f64; M]; M],
+    perm: [u32; M],
+    tied: [Tied; M],
+    lu: [[f64; M]; M],
     response: [[f64; BASE]; M],
     x: [f64; M],
-    y: [f64; M],
 }
 
 impl<const M: usize> Default for ActiveSet<M> {
@@ -660,18 +743,29 @@ impl<const M: usize> ActiveSet<M> {
     pub const fn new() -> Self {
         Self {
             n: 0,
+            n_tied: 0,
             valid: false,
             rows: [0; M],
-            chol: [[0.0; M]; M],
+            perm: [0; M],
+            tied: [Tied {
+                row: 0,
+                lat: 0,
+                c: [0.0; 2],
+            }; M],
+            lu: [[0.0; M]; M],
             response: [[0.0; BASE]; M],
             x: [0.0; M],
-            y: [0.0; M],
         }
     }
 
     /// Number of free rows of the last factorisation.
     pub fn free_rows(&self) -> usize {
         self.n
+    }
+
+    /// Number of tied (friction-saturated axial) rows of the last factorisation.
+    pub fn tied_rows(&self) -> usize {
+        self.n_tied
     }
 
     /// Whether the last factorisation succeeded.

@@ -154,9 +154,15 @@ pub fn random_frame<const M: usize>(
         row += 3;
     }
     frame.group_count = g as u32;
-    // W = S (A Aᵀ / k + α I) S, row scales S: base rows 0.03, gel rows 1 → compliance ~1e-3…1.
+    // W = S (A Aᵀ / k + α I) S with row scales S: the base rows are as compliant as the gel
+    // rows — the needle hangs on the base constraint alone (its own stiffness only regularised),
+    // so moving the base is soft, not stiff; rotation rows scaled to rad/(N·mm).
     let k = m + 8;
-    let scale = |i: usize| if i < BASE_ROWS { 0.03 } else { 1.0 };
+    let scale = |i: usize| match i {
+        0..3 => 1.0,
+        3..BASE_ROWS => 0.01,
+        _ => 1.0,
+    };
     let wseed = rng.next_u64();
     for i in 0..m {
         for j in 0..=i {
