@@ -71,10 +71,24 @@ fn frictionless_problems_match_reference() {
             tolerance: 1e-12,
             max_iterations: 5000,
             polish: true,
+            ..GsParams::default()
         };
         let rep = gs.solve(&pb.w, &pb.delta, &mut lambda, &params);
         let lref = arr(&p["frictionless"]["lambda"]);
         let e = rel_err(&lambda[..pb.n], &lref);
+        // Plain GS without the polish, for the record (slow on ill-conditioned problems).
+        let mut plain = [0.0; M];
+        let plain_params = GsParams {
+            polish: false,
+            max_iterations: 20000,
+            ..params
+        };
+        let prep = gs.solve(&pb.w, &pb.delta, &mut plain, &plain_params);
+        println!(
+            "           plain GS: {} sweeps, rel err {:.2e}",
+            prep.iterations,
+            rel_err(&plain[..pb.n], &lref)
+        );
         worst = worst.max(e);
         println!(
             "problem {id:2} n={:3} cond={:9.1}: sweeps {:5} polished {} rel err {e:.2e}",
@@ -119,6 +133,7 @@ fn friction_problems_match_reference() {
             tolerance: 1e-14,
             max_iterations: 20000,
             polish: false,
+            ..GsParams::default()
         };
         let rep = gs.solve(&pb.w, &pb.delta, &mut lambda, &params);
         let rref = arr(&f["r"]);
