@@ -3,6 +3,8 @@
 #![deny(missing_docs, clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 // `!(x > 0.0)` is deliberate throughout: it is true for NaN, which must take the safe branch.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
+// Units are written in brackets (`[mm]`, `[rad]`, STYLE.md), which rustdoc reads as links.
+#![allow(rustdoc::broken_intra_doc_links)]
 // Index loops over several parallel fixed arrays read better than zipped iterators here.
 #![allow(clippy::needless_range_loop)]
 
@@ -14,7 +16,7 @@ mod math;
 pub mod payload;
 pub mod synthetic;
 
-pub use constraint::{BlockGs, GsParams, SolveReport};
+pub use constraint::{ActiveSet, BlockGs, GsParams, SolveReport};
 pub use ik::{IkError, IkParams, IkReport, solve_ik};
 pub use inverse::{Controller, InverseParams, Objective, StepError};
 pub use kinematics::{DhChain, DhJoint, JointLimit, Pose};
