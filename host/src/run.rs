@@ -7,16 +7,29 @@
 //!   follow the rest path — tip on the target, needle along the path tangent, by IK — computed
 //!   up front and replayed open-loop in the full deformable simulation. Where the replay breaks
 //!   down (IK out of reach, a failed solve, a non-finite state) the run stops cleanly and says so.
+//!
+//! The inverse controller is reached through a [`Transport`]: [`run`] uses
+//! [`InProcess`] (the core called directly), [`run_with`] any transport — `needle serve` passes a
+//! [`needle_bridge::SharedMemoryHost`] and the core runs in another process. The loop is the
+//! same code either way: [`World::prepare`](crate::world::World::prepare) builds the frame,
+//! the transport brings back the command answering it,
+//! [`World::apply_command`](crate::world::World::apply_command) applies it. When no command
+//! arrives within the transport's deadline the host *holds the insertion*: it does not apply
+//! anything, does not advance the target `c`, says so on stderr, and hands the same frame over
+//! again until an answer arrives (or [`RunOptions::give_up_after`] has passed).
 
 use crate::bodies::{Simulation, build};
 use crate::output::{
     MetricsWriter, OutputError, StepMetrics, write_points, write_polyline, write_tet_mesh,
 };
 use crate::scene::Scene;
-use crate::world::{SimError, StepReport};
+use crate::world::{ROWS, SimError, StepReport};
+use needle_bridge::{InProcess, Transport, TransportError};
 use needle_core::ik::{IkParams, solve_ik};
+use needle_core::payload::Command;
 use serde::Serialize;
 use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
 
 /// Which controller drives the robot.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
@@ -39,6 +52,12 @@ pub struct RunOptions {
     pub out_dir: Option<PathBuf>,
     /// Write VTK files every this many steps (0: never; default: the scene's).
     pub vtk_every: Option<usize>,
+    /// Free-running host: start a step at most every `period` (none: as fast as the answers
+    /// come — lock-step).
+    pub period: Option<Duration>,
+    /// Stop the run when no command has answered the current frame for this long (none: hold
+    /// for ever). Only a remote transport can time out.
+    pub give_up_after: Option<Duration>,
 }
 
 impl Default for RunOptions {
@@ -48,6 +67,8 @@ impl Default for RunOptions {
             steps: None,
             out_dir: None,
             vtk_every: None,
+            period: None,
+            give_up_after: None,
         }
     }
 }
@@ -138,6 +159,11 @@ pub struct RunSummary {
     pub gs_iterations_max: u32,
     /// Steps in which a solve hit its iteration cap.
     pub gs_not_converged_steps: usize,
+    /// Times the host held the insertion because no command arrived within the transport's
+    /// deadline.
+    pub holds: usize,
+    /// Total time spent holding [ms].
+    pub held_ms: f64,
 }
 
 /// What a run produces.
@@ -279,16 +305,99 @@ fn vtk_frame(sim: &Simulation, dir: &Path, k: usize) -> Result<(), OutputError> 
     )
 }
 
-/// Runs a scene to the end (or its breakdown), calling `observe` after every step.
+/// Runs a scene to the end (or its breakdown) with the core in this process ([`InProcess`]),
+/// calling `observe` after every step.
 ///
 /// # Errors
 /// [`RunError`] if the simulation cannot be built or an output cannot be written.
 pub fn run(
     scene: &Scene,
     opts: &RunOptions,
+    observe: impl FnMut(&StepReport),
+) -> Result<RunResult, RunError> {
+    let mut core = InProcess::<ROWS>::new(scene.robot(), scene.inverse_params());
+    run_with(scene, opts, &mut core, observe)
+}
+
+/// What the host does while the core is silent (see the module docs).
+enum Exchange {
+    /// The command answering the frame is in the buffer.
+    Answered(Duration),
+    /// The run must stop (reason).
+    Stop(String),
+}
+
+/// Hands the current frame to the core until an answer comes back, holding the insertion
+/// meanwhile.
+fn exchange_holding(
+    sim: &crate::bodies::Simulation,
+    transport: &mut dyn Transport<ROWS>,
+    cmd: &mut Command<ROWS>,
+    opts: &RunOptions,
+    k: usize,
+    holds: &mut usize,
+    held: &mut Duration,
+) -> Exchange {
+    let start = Instant::now();
+    let mut holding = false;
+    loop {
+        match transport.exchange(sim.frame(), cmd) {
+            Ok(r) => {
+                if holding {
+                    let h = start.elapsed();
+                    *held += h;
+                    eprintln!(
+                        "needle: command received after {:.0} ms: resuming at step {k}",
+                        h.as_secs_f64() * 1e3
+                    );
+                }
+                return Exchange::Answered(r.round_trip);
+            }
+            Err(TransportError::Timeout { waited }) => {
+                if !holding {
+                    holding = true;
+                    *holds += 1;
+                    eprintln!(
+                        "needle: no command within {:.0} ms: holding the insertion at step {k} (c = {:.2} mm)",
+                        waited.as_secs_f64() * 1e3,
+                        sim.c
+                    );
+                }
+                if let Some(limit) = opts.give_up_after
+                    && start.elapsed() >= limit
+                {
+                    *held += start.elapsed();
+                    return Exchange::Stop(format!(
+                        "step {k}: no command for {:.1} s",
+                        start.elapsed().as_secs_f64()
+                    ));
+                }
+            }
+            Err(e) => return Exchange::Stop(format!("step {k}: {e}")),
+        }
+    }
+}
+
+/// [`run`] with the inverse controller reached through `transport` (in process, or in another
+/// process over shared memory). The naive baseline does not use the transport.
+///
+/// # Errors
+/// [`RunError`] if the simulation cannot be built or an output cannot be written.
+pub fn run_with(
+    scene: &Scene,
+    opts: &RunOptions,
+    transport: &mut dyn Transport<ROWS>,
     mut observe: impl FnMut(&StepReport),
 ) -> Result<RunResult, RunError> {
     let mut sim = build(scene).map_err(RunError::Setup)?;
+    let mut cmd = {
+        let mut b = Box::<Command<ROWS>>::new_uninit();
+        Command::init_in_place(&mut b);
+        // SAFETY: `init_in_place` initialised every field.
+        unsafe { b.assume_init() }
+    };
+    let (mut holds, mut held) = (0usize, Duration::ZERO);
+    let mut next_start = Instant::now();
     let steps = opts.steps.unwrap_or_else(|| planned_steps(scene));
     let vtk_every = opts.vtk_every.unwrap_or(scene.output.vtk_every);
     let mut csv = match &opts.out_dir {
@@ -318,9 +427,27 @@ pub fn run(
         vtk_frame(&sim, d, 0)?;
     }
     for k in 0..n_steps {
+        if let Some(p) = opts.period {
+            let now = Instant::now();
+            if next_start > now {
+                std::thread::sleep(next_start - now);
+            }
+            next_start = next_start.max(now) + p;
+        }
         let c = ((k + 1) as f64 * scene.insertion.advance_per_step).min(sim.path.total_length());
         let step = match opts.controller {
-            ControllerKind::Inverse => sim.step_with(c, None),
+            ControllerKind::Inverse => match sim.prepare(c) {
+                Err(e) => Err(e),
+                Ok(_) => match exchange_holding(
+                    &sim, transport, &mut cmd, opts, k, &mut holds, &mut held,
+                ) {
+                    Exchange::Answered(rt) => sim.apply_command(&cmd, rt.as_secs_f64() * 1e3),
+                    Exchange::Stop(why) => {
+                        stopped = Some(why);
+                        break;
+                    }
+                },
+            },
             ControllerKind::Naive => sim.step_with(c, Some(joints[k])),
         };
         let rep = match step {
@@ -438,6 +565,8 @@ pub fn run(
             .iter()
             .filter(|r| r.solver.flags & needle_core::payload::StatusFlags::NOT_CONVERGED != 0)
             .count(),
+        holds,
+        held_ms: held.as_secs_f64() * 1e3,
     };
     if let Some(d) = &opts.out_dir {
         let file = d.join("summary.json");

@@ -105,6 +105,12 @@ fn dbg<E: core::fmt::Debug>(e: E) -> String {
     format!("{e:?}")
 }
 
+/// Lowers iceoryx2's log level to errors (it warns on every start that no config file was
+/// found, and the defaults are what the bridge wants). Process-wide.
+pub fn quiet_logs() {
+    set_log_level(LogLevel::Error);
+}
+
 /// Creates a node named `name` (visible in `iox2 node list`).
 ///
 /// # Errors

@@ -3,14 +3,18 @@
 //! ```sh
 //! needle run                      # the embedded complex benchmark scene, inverse controller
 //! needle run scenes/simple.toml --controller naive --out out/simple-naive
+//! needle serve complex            # host process; the core runs in `needle-controller complex`
 //! ```
 
 use clap::{Parser, Subcommand, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
-use needle_host::run::{ControllerKind, RunOptions, planned_steps, run};
+use needle_bridge::{BridgeConfig, SharedMemoryHost, setup_fingerprint};
+use needle_host::run::{ControllerKind, RunOptions, RunSummary, planned_steps, run, run_with};
 use needle_host::scene::Scene;
+use needle_host::world::ROWS;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
+use std::time::Duration;
 
 #[derive(Parser)]
 #[command(
@@ -52,6 +56,41 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Host process of a two-process run: publishes each step's compliance frame over iceoryx2
+    /// shared memory and applies the command of `needle-controller` (run it with the same scene).
+    Serve {
+        /// A scene file, or the name of an embedded scene (`simple`, `complex`).
+        #[arg(default_value = "complex")]
+        scene: String,
+        /// Service-name prefix shared with `needle-controller --instance`.
+        #[arg(long, default_value = "needle")]
+        instance: String,
+        /// Hold the insertion when no command answered the frame within this long [ms].
+        #[arg(long, default_value_t = 50.0)]
+        deadline_ms: f64,
+        /// Free-running: start a step at most every this many ms (default: lock-step, as fast
+        /// as the commands come).
+        #[arg(long)]
+        period_ms: Option<f64>,
+        /// Stop when no command came for this many seconds (default: hold for ever).
+        #[arg(long)]
+        give_up_s: Option<f64>,
+        /// Output folder (steps.csv, summary.json, VTK files); none: print only.
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Number of steps (default: to the end of the path).
+        #[arg(long)]
+        steps: Option<usize>,
+        /// Gel mesh size (overrides the scene's box node count).
+        #[arg(long)]
+        nodes: Option<usize>,
+        /// No progress bar.
+        #[arg(long)]
+        quiet: bool,
+        /// Print the summary as JSON.
+        #[arg(long)]
+        json: bool,
+    },
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -76,6 +115,104 @@ fn load_scene(arg: &str) -> Result<Scene, String> {
     })
 }
 
+/// Overrides the box mesh size of a scene.
+fn set_nodes(scene: &mut Scene, nodes: Option<usize>) -> Result<(), String> {
+    if let Some(n) = nodes {
+        match scene.gel.box_mesh.as_mut() {
+            Some(b) => b.nodes = n,
+            None => return Err("--nodes needs a scene with a generated `gel.box` mesh".into()),
+        }
+    }
+    Ok(())
+}
+
+fn progress(total: u64, quiet: bool) -> ProgressBar {
+    let bar = if quiet {
+        ProgressBar::hidden()
+    } else {
+        ProgressBar::new(total)
+    };
+    bar.set_style(
+        ProgressStyle::with_template("{elapsed_precise} [{bar:40}] {pos}/{len} steps  {msg}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar())
+            .progress_chars("=> "),
+    );
+    bar
+}
+
+fn print_summary(s: &RunSummary, json: bool) -> ExitCode {
+    if json {
+        match serde_json::to_string_pretty(s) {
+            Ok(t) => println!("{t}"),
+            Err(e) => {
+                eprintln!("error: {e}");
+                return ExitCode::FAILURE;
+            }
+        }
+    } else {
+        println!(
+            "scene {} · controller {:?} · {} gel nodes",
+            s.scene, s.controller, s.gel_nodes
+        );
+        println!(
+            "steps {}/{}{}",
+            s.steps,
+            s.steps_planned,
+            match &s.stopped {
+                Some(r) => format!(" — stopped: {r}"),
+                None => String::new(),
+            }
+        );
+        println!(
+            "tracking error inside the gel: mean {:.3} mm, max {:.3} mm, final {:.3} mm (depth {:.1} mm, puncture at step {})",
+            s.e_mean_mm,
+            s.e_max_mm,
+            s.e_final_mm,
+            s.final_depth_mm,
+            s.puncture_step.map_or("—".to_string(), |k| k.to_string())
+        );
+        for c in &s.clearances {
+            println!(
+                "clearance to {}: {:.3} mm{}",
+                c.name,
+                c.min_mm,
+                if c.min_mm < 0.0 { "  (HIT)" } else { "" }
+            );
+        }
+        let t = &s.timing;
+        println!(
+            "time per step [ms] median / p99: total {:.2} / {:.2} · FM {:.2} / {:.2} · CD {:.2} / {:.2} · CC {:.2} / {:.2} · SC {:.2} / {:.2} · corr {:.2} / {:.2}",
+            t.total.median_ms,
+            t.total.p99_ms,
+            t.fm.median_ms,
+            t.fm.p99_ms,
+            t.cd.median_ms,
+            t.cd.p99_ms,
+            t.cc.median_ms,
+            t.cc.p99_ms,
+            t.sc.median_ms,
+            t.sc.p99_ms,
+            t.correction.median_ms,
+            t.correction.p99_ms
+        );
+        println!(
+            "Gauss-Seidel sweeps per step: mean {:.1}, max {} ({} steps hit the cap)",
+            s.gs_iterations_mean, s.gs_iterations_max, s.gs_not_converged_steps
+        );
+    }
+    if s.holds > 0 {
+        println!(
+            "held the insertion {} time(s), {:.0} ms in total (no command within the deadline)",
+            s.holds, s.held_ms
+        );
+    }
+    if s.completed {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::from(3)
+    }
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     match cli.command {
@@ -89,22 +226,16 @@ fn main() -> ExitCode {
             quiet,
             json,
         } => {
-            let mut scene = match load_scene(&scene) {
+            let scene = match load_scene(&scene).and_then(|mut s| {
+                set_nodes(&mut s, nodes)?;
+                Ok(s)
+            }) {
                 Ok(s) => s,
                 Err(e) => {
                     eprintln!("error: {e}");
                     return ExitCode::from(2);
                 }
             };
-            if let Some(n) = nodes {
-                match scene.gel.box_mesh.as_mut() {
-                    Some(b) => b.nodes = n,
-                    None => {
-                        eprintln!("error: --nodes needs a scene with a generated `gel.box` mesh");
-                        return ExitCode::from(2);
-                    }
-                }
-            }
             let opts = RunOptions {
                 controller: match controller {
                     Ctl::Inverse => ControllerKind::Inverse,
@@ -113,20 +244,9 @@ fn main() -> ExitCode {
                 steps,
                 out_dir: out,
                 vtk_every,
+                ..RunOptions::default()
             };
-            let total = steps.unwrap_or_else(|| planned_steps(&scene)) as u64;
-            let bar = if quiet {
-                ProgressBar::hidden()
-            } else {
-                ProgressBar::new(total)
-            };
-            bar.set_style(
-                ProgressStyle::with_template(
-                    "{elapsed_precise} [{bar:40}] {pos}/{len} steps  {msg}",
-                )
-                .unwrap_or_else(|_| ProgressStyle::default_bar())
-                .progress_chars("=> "),
-            );
+            let bar = progress(steps.unwrap_or_else(|| planned_steps(&scene)) as u64, quiet);
             let result = run(&scene, &opts, |r| {
                 bar.set_position(r.step as u64 + 1);
                 bar.set_message(format!(
@@ -135,77 +255,102 @@ fn main() -> ExitCode {
                 ));
             });
             bar.finish_and_clear();
-            let result = match result {
-                Ok(r) => r,
+            match result {
+                Ok(r) => print_summary(&r.summary, json),
+                Err(e) => {
+                    eprintln!("error: {e}");
+                    ExitCode::FAILURE
+                }
+            }
+        }
+        Command::Serve {
+            scene,
+            instance,
+            deadline_ms,
+            period_ms,
+            give_up_s,
+            out,
+            steps,
+            nodes,
+            quiet,
+            json,
+        } => {
+            let scene = match load_scene(&scene).and_then(|mut s| {
+                set_nodes(&mut s, nodes)?;
+                Ok(s)
+            }) {
+                Ok(s) => s,
+                Err(e) => {
+                    eprintln!("error: {e}");
+                    return ExitCode::from(2);
+                }
+            };
+            let positive = |x: f64| x.is_finite() && x > 0.0;
+            if !positive(deadline_ms)
+                || period_ms.is_some_and(|p| !positive(p))
+                || give_up_s.is_some_and(|g| !positive(g))
+            {
+                eprintln!("error: --deadline-ms, --period-ms and --give-up-s must be positive");
+                return ExitCode::from(2);
+            }
+            let cfg = BridgeConfig {
+                instance,
+                deadline: Duration::from_secs_f64(deadline_ms * 1e-3),
+                handle_signals: true,
+                ..BridgeConfig::default()
+            };
+            let setup = setup_fingerprint(&scene.robot(), &scene.inverse_params());
+            let mut host = match SharedMemoryHost::<ROWS>::connect(&cfg, setup) {
+                Ok(h) => h,
                 Err(e) => {
                     eprintln!("error: {e}");
                     return ExitCode::FAILURE;
                 }
             };
-            let s = &result.summary;
-            if json {
-                match serde_json::to_string_pretty(s) {
-                    Ok(t) => println!("{t}"),
-                    Err(e) => {
-                        eprintln!("error: {e}");
-                        return ExitCode::FAILURE;
-                    }
+            eprintln!(
+                "needle serve: scene {} · session {:016x} · frames on {} · commands from {} · {} dead node(s) cleaned",
+                scene.name,
+                host.session(),
+                cfg.frame_service_name(),
+                cfg.command_service_name(),
+                host.stats().dead_nodes_cleaned
+            );
+            eprintln!(
+                "needle serve: waiting for `needle-controller {} --instance {}`",
+                scene.name, cfg.instance
+            );
+            let opts = RunOptions {
+                controller: ControllerKind::Inverse,
+                steps,
+                out_dir: out,
+                period: period_ms.map(|p| Duration::from_secs_f64(p * 1e-3)),
+                give_up_after: give_up_s.map(Duration::from_secs_f64),
+                ..RunOptions::default()
+            };
+            let bar = progress(steps.unwrap_or_else(|| planned_steps(&scene)) as u64, quiet);
+            let result = run_with(&scene, &opts, &mut host, |r| {
+                bar.set_position(r.step as u64 + 1);
+                bar.set_message(format!(
+                    "depth {:5.1} mm  error {:6.3} mm",
+                    r.depth, r.error
+                ));
+            });
+            bar.finish_and_clear();
+            let st = host.stats();
+            eprintln!(
+                "needle serve: frames published {}, commands accepted {}, rejected {}, stale {}, timeouts {}",
+                st.frames_published,
+                st.commands_accepted,
+                st.commands_rejected,
+                st.commands_stale,
+                st.timeouts
+            );
+            match result {
+                Ok(r) => print_summary(&r.summary, json),
+                Err(e) => {
+                    eprintln!("error: {e}");
+                    ExitCode::FAILURE
                 }
-            } else {
-                println!(
-                    "scene {} · controller {:?} · {} gel nodes",
-                    s.scene, s.controller, s.gel_nodes
-                );
-                println!(
-                    "steps {}/{}{}",
-                    s.steps,
-                    s.steps_planned,
-                    match &s.stopped {
-                        Some(r) => format!(" — stopped: {r}"),
-                        None => String::new(),
-                    }
-                );
-                println!(
-                    "tracking error inside the gel: mean {:.3} mm, max {:.3} mm, final {:.3} mm (depth {:.1} mm, puncture at step {})",
-                    s.e_mean_mm,
-                    s.e_max_mm,
-                    s.e_final_mm,
-                    s.final_depth_mm,
-                    s.puncture_step.map_or("—".to_string(), |k| k.to_string())
-                );
-                for c in &s.clearances {
-                    println!(
-                        "clearance to {}: {:.3} mm{}",
-                        c.name,
-                        c.min_mm,
-                        if c.min_mm < 0.0 { "  (HIT)" } else { "" }
-                    );
-                }
-                let t = &s.timing;
-                println!(
-                    "time per step [ms] median / p99: total {:.2} / {:.2} · FM {:.2} / {:.2} · CD {:.2} / {:.2} · CC {:.2} / {:.2} · SC {:.2} / {:.2} · corr {:.2} / {:.2}",
-                    t.total.median_ms,
-                    t.total.p99_ms,
-                    t.fm.median_ms,
-                    t.fm.p99_ms,
-                    t.cd.median_ms,
-                    t.cd.p99_ms,
-                    t.cc.median_ms,
-                    t.cc.p99_ms,
-                    t.sc.median_ms,
-                    t.sc.p99_ms,
-                    t.correction.median_ms,
-                    t.correction.p99_ms
-                );
-                println!(
-                    "Gauss-Seidel sweeps per step: mean {:.1}, max {} ({} steps hit the cap)",
-                    s.gs_iterations_mean, s.gs_iterations_max, s.gs_not_converged_steps
-                );
-            }
-            if s.completed {
-                ExitCode::SUCCESS
-            } else {
-                ExitCode::from(3)
             }
         }
     }

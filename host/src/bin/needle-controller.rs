@@ -1,0 +1,117 @@
+//! `needle-controller`: the core's process of a two-process run. It links `needle-core` the way
+//! a robot controller would and talks to `needle serve` over iceoryx2 shared memory
+//! (`needle-bridge`): a fixed-rate loop (default 1 kHz) that solves the inverse step over the
+//! newest frame and publishes the command; without a fresh frame for the deadline (default
+//! 50 ms) it holds the robot (re-commands the last joints) and resumes when a host publishes
+//! again.
+//!
+//! It reads the same scene as `needle serve` only to build the robot chain and the inverse
+//! tuning (`Scene::robot`, `Scene::inverse_params`); the frames carry a fingerprint of that
+//! set-up, and a controller started with another scene rejects them. At run time it uses
+//! `needle-core` and `needle-bridge` only.
+//!
+//! ```sh
+//! needle serve complex            # terminal 1
+//! needle-controller complex       # terminal 2
+//! ```
+
+use clap::Parser;
+use needle_bridge::{BridgeConfig, ControllerOptions, run_controller};
+use needle_host::scene::Scene;
+use needle_host::world::ROWS;
+use std::path::Path;
+use std::process::ExitCode;
+use std::sync::atomic::AtomicBool;
+use std::time::Duration;
+
+#[derive(Parser)]
+#[command(
+    name = "needle-controller",
+    version,
+    about = "Inverse controller process: solves over the frames of `needle serve` (iceoryx2 shared memory)"
+)]
+struct Cli {
+    /// The scene `needle serve` runs: a file, or an embedded name (`simple`, `complex`).
+    #[arg(default_value = "complex")]
+    scene: String,
+    /// Service-name prefix shared with `needle serve --instance`.
+    #[arg(long, default_value = "needle")]
+    instance: String,
+    /// Loop rate [Hz]; 0: answer every frame as soon as it arrives.
+    #[arg(long, default_value_t = 1000.0)]
+    rate: f64,
+    /// Hold the robot when no fresh frame arrived for this long [ms].
+    #[arg(long, default_value_t = 50.0)]
+    deadline_ms: f64,
+    /// Stop after this many seconds (default: until Ctrl-C).
+    #[arg(long)]
+    run_for: Option<f64>,
+    /// Stop after solving this many frames.
+    #[arg(long)]
+    max_frames: Option<u64>,
+    /// Do not print events.
+    #[arg(long)]
+    quiet: bool,
+}
+
+fn load_scene(arg: &str) -> Result<Scene, String> {
+    let p = Path::new(arg);
+    if p.exists() || arg.ends_with(".toml") {
+        return Scene::load(p).map_err(|e| e.to_string());
+    }
+    Scene::builtin(arg).ok_or_else(|| {
+        format!(
+            "`{arg}` is neither a scene file nor an embedded scene ({})",
+            Scene::BUILTIN.join(", ")
+        )
+    })
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let scene = match load_scene(&cli.scene) {
+        Ok(s) => s,
+        Err(e) => {
+            eprintln!("error: {e}");
+            return ExitCode::from(2);
+        }
+    };
+    if !(cli.deadline_ms > 0.0 && cli.deadline_ms.is_finite()) || !(cli.rate >= 0.0) {
+        eprintln!("error: --deadline-ms must be positive and --rate non-negative");
+        return ExitCode::from(2);
+    }
+    let opts = ControllerOptions {
+        bridge: BridgeConfig {
+            instance: cli.instance,
+            deadline: Duration::from_secs_f64(cli.deadline_ms * 1e-3),
+            handle_signals: true,
+            ..BridgeConfig::default()
+        },
+        rate_hz: cli.rate,
+        run_for: cli.run_for.map(Duration::from_secs_f64),
+        max_frames: cli.max_frames,
+        verbose: !cli.quiet,
+    };
+    eprintln!(
+        "needle-controller: scene {} · {} Hz · deadline {} ms · frames from {}",
+        scene.name,
+        opts.rate_hz,
+        cli.deadline_ms,
+        opts.bridge.frame_service_name()
+    );
+    match run_controller::<ROWS>(
+        scene.robot(),
+        scene.inverse_params(),
+        &opts,
+        &AtomicBool::new(false),
+    ) {
+        Ok(stats) => {
+            println!("needle-controller: {stats}");
+            ExitCode::SUCCESS
+        }
+        Err(e) => {
+            eprintln!("error: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}

@@ -1,0 +1,126 @@
+//! Two processes in lock-step give the one-process result bit for bit.
+//!
+//! The complex scene's first 40 steps (the approach in the air) run once with the core in
+//! process (`needle_host::run::run`, [`needle_bridge::InProcess`]) and once with the core in a
+//! child process — this test binary re-run as a `needle-controller` at 1 kHz — over iceoryx2
+//! shared memory (`run_with` + [`needle_bridge::SharedMemoryHost`]). Every step's tip, joints,
+//! error and λ norms must be equal exactly.
+
+#[path = "bridge_util/mod.rs"]
+mod util;
+
+use needle_bridge::{ControllerOptions, SharedMemoryHost, run_controller, setup_fingerprint};
+use needle_host::run::{RunOptions, run, run_with};
+use needle_host::scene::Scene;
+use needle_host::world::ROWS;
+use std::sync::atomic::AtomicBool;
+use std::time::Duration;
+use util::*;
+
+const TEST: &str = "two_process_lockstep_equals_one_process_bit_for_bit";
+const STEPS: usize = 40;
+
+fn scene() -> Scene {
+    Scene::builtin("complex").expect("the embedded complex scene")
+}
+
+/// The child's role: a controller that exits after answering `STEPS` frames (or after 120 s).
+fn controller_role() {
+    quiet_logs_once();
+    let instance = std::env::var(INSTANCE).expect("instance");
+    let s = scene();
+    let opts = ControllerOptions {
+        bridge: config(&instance),
+        rate_hz: 1000.0,
+        run_for: Some(Duration::from_secs(120)),
+        max_frames: Some(STEPS as u64),
+        verbose: true,
+    };
+    let stats = run_controller::<ROWS>(
+        s.robot(),
+        s.inverse_params(),
+        &opts,
+        &AtomicBool::new(false),
+    )
+    .expect("controller run");
+    println!("CONTROLLER {stats}");
+}
+
+fn quiet_logs_once() {
+    quiet_iceoryx();
+}
+
+#[test]
+fn two_process_lockstep_equals_one_process_bit_for_bit() {
+    if let Ok(role) = std::env::var(ROLE) {
+        assert_eq!(role, "controller");
+        controller_role();
+        return;
+    }
+    quiet_iceoryx();
+    let scene = scene();
+    let opts = RunOptions {
+        steps: Some(STEPS),
+        give_up_after: Some(Duration::from_secs(60)),
+        ..RunOptions::default()
+    };
+    let one = run(&scene, &opts, |_| {}).expect("one-process run");
+    assert_eq!(
+        one.reports.len(),
+        STEPS,
+        "one-process run: {:?}",
+        one.summary.stopped
+    );
+
+    let instance = unique_instance("lockstep");
+    let setup = setup_fingerprint(&scene.robot(), &scene.inverse_params());
+    let mut host = SharedMemoryHost::<ROWS>::connect(&config(&instance), setup).expect("host");
+    let mut child = spawn_role(TEST, "controller", &[(INSTANCE, instance.clone())]);
+    let two = run_with(&scene, &opts, &mut host, |_| {});
+    let (status, out) = wait_child(&mut child, Duration::from_secs(60));
+    let two = two.expect("two-process run");
+    println!("{out}");
+    assert!(
+        status.is_some_and(|s| s.success()),
+        "controller: {status:?}\n{out}"
+    );
+    assert_eq!(
+        two.reports.len(),
+        STEPS,
+        "two-process run: {:?}",
+        two.summary.stopped
+    );
+    for (a, b) in one.reports.iter().zip(&two.reports) {
+        assert_eq!(a.step, b.step);
+        assert_eq!(a.c.to_bits(), b.c.to_bits(), "step {}: c", a.step);
+        for k in 0..3 {
+            assert_eq!(
+                a.tip[k].to_bits(),
+                b.tip[k].to_bits(),
+                "step {}: tip {k}",
+                a.step
+            );
+        }
+        for k in 0..6 {
+            assert_eq!(a.q[k].to_bits(), b.q[k].to_bits(), "step {}: q {k}", a.step);
+        }
+        assert_eq!(
+            a.error.to_bits(),
+            b.error.to_bits(),
+            "step {}: error",
+            a.step
+        );
+        for k in 0..3 {
+            assert_eq!(
+                a.lambda_norms[k].to_bits(),
+                b.lambda_norms[k].to_bits(),
+                "step {}: λ norm {k}",
+                a.step
+            );
+        }
+        assert_eq!(a.solver, b.solver, "step {}: solver report", a.step);
+    }
+    let st = host.stats();
+    assert_eq!(st.commands_accepted, STEPS as u64);
+    assert_eq!(st.commands_rejected, 0);
+}
