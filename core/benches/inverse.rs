@@ -24,6 +24,12 @@ fn bench(c: &mut Criterion) {
                 ctrl.step(black_box(&f), &mut cmd)
             })
         });
+        // Without the active-set prediction (every solve plain warm-started GS).
+        ctrl.params.active_set = false;
+        c.bench_function(&format!("inverse_step_m{m}_plain_gs"), |b| {
+            b.iter(|| ctrl.step(black_box(&f), &mut cmd))
+        });
+        ctrl.params.active_set = true;
     }
 }
 

@@ -1,5 +1,5 @@
 //! Instruction counts (valgrind, through gungraun) of the inverse step at m = 120, cold (fresh
-//! controller) — deterministic, so regressions show as exact count changes.
+//! controller; `_plain_gs`: without the active-set prediction) — deterministic, so regressions show as exact count changes.
 //! Run: `cargo bench -p needle-core --bench inverse_instructions` (needs `gungraun-runner` 0.20).
 
 use gungraun::{library_benchmark, library_benchmark_group, main};
@@ -14,17 +14,20 @@ struct State {
     ctrl: Box<Controller<{ common::M }>>,
 }
 
-fn setup(m: usize) -> State {
+fn setup(m: usize, active_set: bool) -> State {
+    let mut ctrl = common::controller();
+    ctrl.params.active_set = active_set;
     State {
         frame: common::frame(m, 11),
         cmd: common::command(),
-        ctrl: common::controller(),
+        ctrl,
     }
 }
 
 #[library_benchmark]
-#[bench::inverse_step_m30(args = (30), setup = setup)]
-#[bench::inverse_step_m120(args = (120), setup = setup)]
+#[bench::inverse_step_m30(args = (30, true), setup = setup)]
+#[bench::inverse_step_m120(args = (120, true), setup = setup)]
+#[bench::inverse_step_m120_plain_gs(args = (120, false), setup = setup)]
 fn inverse_step(mut s: State) -> SolverReport {
     let rep = s.ctrl.step(black_box(&s.frame), &mut s.cmd);
     black_box(rep.unwrap_or_default())

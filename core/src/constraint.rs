@@ -228,9 +228,9 @@ impl<const M: usize> BlockGs<M> {
             if !lambda[i].is_finite() {
                 lambda[i] = 0.0;
             }
-            self.w[i] = dot(&w[i][..m], &lambda[..m]) - delta[i];
             scale = scale.max(libm::fabs(self.diag[i] * lambda[i]));
         }
+        self.residual_dispatch(w, delta, lambda);
         if !(scale > 0.0) {
             lambda[..m].fill(0.0);
             return SolveReport {
@@ -250,7 +250,7 @@ impl<const M: usize> BlockGs<M> {
             } else {
                 1.0
             };
-            let change = self.sweep(w, lambda, omega);
+            let change = self.sweep_dispatch(w, lambda, omega);
             report.iterations += 1;
             report.residual = change / scale;
             if !(report.residual > tol) {
@@ -266,9 +266,52 @@ impl<const M: usize> BlockGs<M> {
         report
     }
 
+    /// `w = W λ − δ` over the used rows, with the AVX2 copy when available.
+    fn residual_dispatch(&mut self, w: &[[f64; M]; M], delta: &[f64; M], lambda: &[f64; M]) {
+        #[cfg(target_arch = "x86_64")]
+        if crate::math::use_avx2() {
+            // SAFETY: AVX2 support was checked at run time.
+            unsafe { self.residual_avx2(w, delta, lambda) };
+            return;
+        }
+        self.residual_inline(w, delta, lambda);
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn residual_avx2(&mut self, w: &[[f64; M]; M], delta: &[f64; M], lambda: &[f64; M]) {
+        self.residual_inline(w, delta, lambda);
+    }
+
+    #[inline(always)]
+    fn residual_inline(&mut self, w: &[[f64; M]; M], delta: &[f64; M], lambda: &[f64; M]) {
+        let m = self.m;
+        for i in 0..m {
+            self.w[i] = dot(&w[i][..m], &lambda[..m]) - delta[i];
+        }
+    }
+
+    /// One sweep, with the AVX2 copy of the loops when the CPU has it (same arithmetic, so
+    /// the same result up to the order of the additions inside `dot`).
+    fn sweep_dispatch(&mut self, w: &[[f64; M]; M], lambda: &mut [f64; M], omega: f64) -> f64 {
+        #[cfg(target_arch = "x86_64")]
+        if crate::math::use_avx2() {
+            // SAFETY: AVX2 support was checked at run time.
+            return unsafe { self.sweep_avx2(w, lambda, omega) };
+        }
+        self.sweep(w, lambda, omega)
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn sweep_avx2(&mut self, w: &[[f64; M]; M], lambda: &mut [f64; M], omega: f64) -> f64 {
+        self.sweep(w, lambda, omega)
+    }
+
     /// One sweep over every group; returns the largest `|W_ii Δλ_i|`. Each group computes its
     /// update from its own diagonal block, then applies it to `w` in one fused pass over the
     /// group's rows of `W` (one read-modify-write of `w` per group, not per row).
+    #[inline(always)]
     fn sweep(&mut self, w: &[[f64; M]; M], lambda: &mut [f64; M], omega: f64) -> f64 {
         let m = self.m;
         let mut change = 0.0f64;
@@ -540,6 +583,27 @@ impl<const M: usize> BlockGs<M> {
         lambda: &[f64; M],
         set: &mut ActiveSet<M>,
     ) -> bool {
+        #[cfg(target_arch = "x86_64")]
+        if crate::math::use_avx2() {
+            // SAFETY: AVX2 support was checked at run time.
+            return unsafe { self.factor_avx2(w, lambda, set) };
+        }
+        self.factor_inline(w, lambda, set)
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn factor_avx2(
+        &self,
+        w: &[[f64; M]; M],
+        lambda: &[f64; M],
+        set: &mut ActiveSet<M>,
+    ) -> bool {
+        self.factor_inline(w, lambda, set)
+    }
+
+    #[inline(always)]
+    fn factor_inline(&self, w: &[[f64; M]; M], lambda: &[f64; M], set: &mut ActiveSet<M>) -> bool {
         set.valid = false;
         self.classify(lambda, set);
         let n = set.n;

@@ -4,7 +4,7 @@ use nalgebra::{Matrix3, Quaternion, UnitQuaternion, Vector3};
 
 /// Dot product with four independent accumulators (lets the compiler vectorise without
 /// reassociation).
-#[inline]
+#[inline(always)]
 pub(crate) fn dot(a: &[f64], b: &[f64]) -> f64 {
     let n = a.len().min(b.len());
     let (a, b) = (&a[..n], &b[..n]);
@@ -25,7 +25,7 @@ pub(crate) fn dot(a: &[f64], b: &[f64]) -> f64 {
 }
 
 /// `y += alpha · x`.
-#[inline]
+#[inline(always)]
 pub(crate) fn axpy(alpha: f64, x: &[f64], y: &mut [f64]) {
     for (yi, xi) in y.iter_mut().zip(x) {
         *yi += alpha * xi;
@@ -33,7 +33,7 @@ pub(crate) fn axpy(alpha: f64, x: &[f64], y: &mut [f64]) {
 }
 
 /// `y += d0 · x0 + d1 · x1 + d2 · x2` in one pass over `y`.
-#[inline]
+#[inline(always)]
 pub(crate) fn axpy3(d: [f64; 3], x0: &[f64], x1: &[f64], x2: &[f64], y: &mut [f64]) {
     let n = y.len().min(x0.len()).min(x1.len()).min(x2.len());
     let (x0, x1, x2, y) = (&x0[..n], &x1[..n], &x2[..n], &mut y[..n]);
@@ -173,5 +173,71 @@ mod tests {
                 assert!((s - if i == j { 1.0 } else { 0.0 }).abs() < 1e-14);
             }
         }
+    }
+}
+
+/// Runtime detection of AVX2 on x86-64 (cached), so the hot loops can be compiled twice —
+/// baseline x86-64 (SSE2) and AVX2 — and the right copy picked at run time without
+/// `-C target-cpu`. Uses only `core` (cpuid, xgetbv): no std.
+#[cfg(target_arch = "x86_64")]
+pub(crate) mod simd {
+    use core::sync::atomic::{AtomicU8, Ordering};
+
+    static LEVEL: AtomicU8 = AtomicU8::new(0);
+
+    /// Whether the CPU and the OS support AVX2 (YMM state enabled).
+    #[inline]
+    pub(crate) fn has_avx2() -> bool {
+        if cfg!(target_feature = "avx2") {
+            return true;
+        }
+        match LEVEL.load(Ordering::Relaxed) {
+            1 => false,
+            2 => true,
+            _ => {
+                let v = detect();
+                LEVEL.store(if v { 2 } else { 1 }, Ordering::Relaxed);
+                v
+            }
+        }
+    }
+
+    fn detect() -> bool {
+        use core::arch::x86_64::{__cpuid, __cpuid_count};
+        // `cpuid` exists on every x86-64 CPU.
+        #[allow(unused_unsafe)]
+        let l1 = unsafe { __cpuid(1) };
+        let osxsave = l1.ecx & (1 << 27) != 0;
+        let avx = l1.ecx & (1 << 28) != 0;
+        if !(osxsave && avx) {
+            return false;
+        }
+        // SAFETY: OSXSAVE is set, so `xgetbv` is enabled by the OS.
+        let xcr0 = unsafe { xgetbv0() };
+        if xcr0 & 0b110 != 0b110 {
+            return false;
+        }
+        #[allow(unused_unsafe)]
+        let l7 = unsafe { __cpuid_count(7, 0) };
+        l7.ebx & (1 << 5) != 0
+    }
+
+    #[target_feature(enable = "xsave")]
+    unsafe fn xgetbv0() -> u64 {
+        // SAFETY: the caller checked OSXSAVE.
+        unsafe { core::arch::x86_64::_xgetbv(0) }
+    }
+}
+
+/// Whether the AVX2 copies of the hot loops may run.
+#[inline]
+pub(crate) fn use_avx2() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        simd::has_avx2()
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
     }
 }

@@ -360,10 +360,14 @@ pub fn validate_compliance<const M: usize>(
             return Err(ValidationError::NonPositiveDiagonal { row: i });
         }
     }
+    let mut root = [0.0f64; M];
     for i in 0..m {
+        root[i] = libm::sqrt(w[i][i]);
+    }
+    for i in 0..m {
+        let tol_i = 1e-8 * root[i];
         for j in 0..i {
-            let scale = libm::sqrt(w[i][i] * w[j][j]);
-            if libm::fabs(w[i][j] - w[j][i]) > 1e-8 * scale {
+            if libm::fabs(w[i][j] - w[j][i]) > tol_i * root[j] {
                 return Err(ValidationError::NotSymmetric { row: i, col: j });
             }
         }
