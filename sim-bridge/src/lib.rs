@@ -16,6 +16,9 @@
 //! this crate and the core. The frames carry a fingerprint of that set-up
 //! ([`payload::setup_fingerprint`]), so a controller started with another scene refuses them.
 
+/// The iceoryx2 this crate is built with (to open its services with matching types).
+pub use iceoryx2;
+
 pub mod controller;
 pub mod payload;
 pub mod shm;
