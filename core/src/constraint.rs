@@ -383,7 +383,9 @@ impl<const M: usize> BlockGs<M> {
                     let (d1, d2) = (omega * d1, omega * d2);
                     lambda[s] += d1;
                     lambda[s + 1] += d2;
-                    let lat = libm::hypot(lambda[s], lambda[s + 1]);
+                    // Plain sqrt, not `hypot` (5× cheaper; overflow would need |λ| > 1e154 N,
+                    // and an infinite bound still clamps to a finite λ_a).
+                    let lat = libm::sqrt(lambda[s] * lambda[s] + lambda[s + 1] * lambda[s + 1]);
                     let bound = b.mu * lat + b.r0;
                     let a = s + 2;
                     // w_a after the lateral update.
