@@ -238,6 +238,23 @@ fn error_variants_carry_their_fields() {
         f.validate(),
         Err(ValidationError::GroupLayout { group: 2, .. })
     ));
+    // Commands are validated on receipt by the host.
+    let mut cmd = boxed_command();
+    assert_eq!(cmd.validate(), Ok(()));
+    cmd.m = M as u32 + 1;
+    assert!(matches!(
+        cmd.validate(),
+        Err(ValidationError::CapacityExceeded { .. })
+    ));
+    cmd.m = 3;
+    cmd.lambda[2] = f64::INFINITY;
+    assert_eq!(
+        cmd.validate(),
+        Err(ValidationError::NonFinite {
+            field: "lambda",
+            index: 2
+        })
+    );
     let e: &dyn std::error::Error = &ValidationError::NotRotation;
     assert!(!e.to_string().is_empty());
 }
