@@ -72,10 +72,10 @@ pub struct InverseParams {
     /// prediction (default true; see [`ActiveSet`]). Gauss-Seidel still runs every solve to
     /// `gs.tolerance`, so this changes the cost, not the answer.
     pub active_set: bool,
-    /// Tolerance of the first, loose Gauss-Seidel pass that finds the active set (default 1e-6).
+    /// Tolerance of the first, loose Gauss-Seidel pass that finds the active set (default 1e-5).
     pub presolve_tolerance: f64,
-    /// Gauss-Seidel tolerance of the 6 Jacobian solves (default 1e-6): their error enters `J`
-    /// divided by `δq`, and a relative solve error of 1e-6 is far below the forward difference's
+    /// Gauss-Seidel tolerance of the 6 Jacobian solves (default 1e-5): their error enters `J`
+    /// divided by `δq`, and a relative solve error of 1e-5 is far below the forward difference's
     /// own truncation error (of order `δq`). The base and final solves use `gs.tolerance`.
     pub jacobian_tolerance: f64,
 }
@@ -100,8 +100,8 @@ impl Default for InverseParams {
             },
             warm_start: true,
             active_set: true,
-            presolve_tolerance: 1e-6,
-            jacobian_tolerance: 1e-6,
+            presolve_tolerance: 1e-5,
+            jacobian_tolerance: 1e-5,
         }
     }
 }
