@@ -153,6 +153,8 @@ struct Pending {
 /// Scratch of the open-loop mode (a single solve at given joints).
 struct OpenLoop {
     gs: BlockGs<ROWS>,
+    w: [[f64; ROWS]; ROWS],
+    s: [[f64; 6]; ROWS],
     delta: [f64; ROWS],
     lambda: [f64; ROWS],
 }
@@ -396,6 +398,8 @@ impl<G: GelBody, N: NeedleBody> World<G, N> {
             pending: Pending::default(),
             open_loop: Box::new(OpenLoop {
                 gs: BlockGs::new(),
+                w: [[0.0; ROWS]; ROWS],
+                s: [[0.0; 6]; ROWS],
                 delta: [0.0; ROWS],
                 lambda: [0.0; ROWS],
             }),
@@ -416,6 +420,26 @@ impl<G: GelBody, N: NeedleBody> World<G, N> {
     /// The last command received from the core.
     pub fn command(&self) -> &Command<ROWS> {
         &self.command
+    }
+
+    /// The force each row group of the last step applies to the needle, world frame [N]
+    /// (the gel receives the opposite of every contact and sliding force); for the base group,
+    /// its translational rows.
+    pub fn needle_forces(&self) -> Vec<(GroupRole, Vector3<f64>)> {
+        let starts = self.set.starts();
+        self.set
+            .groups
+            .iter()
+            .zip(starts)
+            .map(|(g, s)| {
+                let a = &g.attachments[0];
+                let mut l = Vector3::zeros();
+                for r in 0..a.rows.min(3) {
+                    l[r] = self.lambda[s + a.row_offset + r];
+                }
+                (g.role, a.sign * a.d.transpose() * l)
+            })
+            .collect()
     }
 
     /// Needle-base pose `B(q)` in the world.
@@ -575,7 +599,11 @@ impl<G: GelBody, N: NeedleBody> World<G, N> {
     /// # Errors
     /// [`SimError::Command`] when the command does not answer the frame (version, sequence,
     /// row count) or carries non-finite values; the state is then unchanged.
-    pub fn apply_command(&mut self, cmd: &Command<ROWS>, sc_ms: f64) -> Result<StepReport, SimError> {
+    pub fn apply_command(
+        &mut self,
+        cmd: &Command<ROWS>,
+        sc_ms: f64,
+    ) -> Result<StepReport, SimError> {
         let f = &self.frame;
         let why = if cmd.version != needle_core::payload::VERSION {
             Some("version")
@@ -583,7 +611,12 @@ impl<G: GelBody, N: NeedleBody> World<G, N> {
             Some("sequence")
         } else if cmd.m != f.m {
             Some("row count")
-        } else if !cmd.q.iter().chain(&cmd.lambda[..f.rows()]).all(|v| v.is_finite()) {
+        } else if !cmd
+            .q
+            .iter()
+            .chain(&cmd.lambda[..f.rows()])
+            .all(|v| v.is_finite())
+        {
             Some("non-finite value")
         } else {
             None
@@ -691,21 +724,87 @@ impl<G: GelBody, N: NeedleBody> World<G, N> {
     fn solve_open_loop(&mut self, q: [f64; JOINTS]) -> Result<SolverReport, SimError> {
         let ol = &mut *self.open_loop;
         let f = &*self.frame;
-        ol.gs
-            .prepare_frame(f)
+        f.validate()
             .map_err(|e| SimError::Core(StepError::InvalidFrame(e)))?;
         let m = f.rows();
-        ol.delta[..m].copy_from_slice(&f.delta_free[..m]);
         let b = self.chain.tool_pose(&q);
-        ol.delta[..6].copy_from_slice(&base_violation(&b, &f.p_free, &f.r_free));
-        ol.lambda[m..].fill(0.0);
-        let rep = ol
-            .gs
-            .solve(&f.w, &ol.delta, &mut ol.lambda, &self.controller.params.gs);
+        let db = base_violation(&b, &f.p_free, &f.r_free);
+        // Eliminate the 6 bilateral base rows exactly (Schur complement): the other rows see the
+        // needle clamped at its base, which removes the free needle's huge rigid-body compliance
+        // shared by every needle-side row (it makes W nearly singular for Gauss-Seidel).
+        let wbb = nalgebra::Matrix6::from_fn(|i, j| f.w[i][j]);
+        let wbb_inv = wbb
+            .try_inverse()
+            .ok_or(SimError::NonFinite("base block of W"))?;
+        let n = m - 6;
+        // S = W_ob W_bb⁻¹ (n × 6).
+        for i in 0..n {
+            let wob = nalgebra::RowVector6::from_fn(|_, j| f.w[6 + i][j]);
+            let srow = wob * wbb_inv;
+            for j in 0..6 {
+                ol.s[i][j] = srow[j];
+            }
+        }
+        for i in 0..n {
+            for j in 0..n {
+                let mut v = f.w[6 + i][6 + j];
+                for k in 0..6 {
+                    v -= ol.s[i][k] * f.w[k][6 + j];
+                }
+                ol.w[i][j] = v;
+            }
+            let mut d = f.delta_free[6 + i];
+            for k in 0..6 {
+                d -= ol.s[i][k] * db[k];
+            }
+            ol.delta[i] = d;
+        }
+        // Symmetrise against round-off.
+        for i in 0..n {
+            for j in 0..i {
+                let v = 0.5 * (ol.w[i][j] + ol.w[j][i]);
+                ol.w[i][j] = v;
+                ol.w[j][i] = v;
+            }
+        }
+        let groups: Vec<_> = f.used_groups()[1..]
+            .iter()
+            .map(|g| {
+                let mut g = *g;
+                g.start -= 6;
+                g
+            })
+            .collect();
+        let rep = if n > 0 {
+            ol.gs
+                .prepare(&ol.w, n, &groups)
+                .map_err(|e| SimError::Core(StepError::InvalidFrame(e)))?;
+            // Warm start from the previous λ of the same rows.
+            for i in 0..n {
+                ol.lambda[i] = self.command.lambda[6 + i];
+            }
+            ol.lambda[n..].fill(0.0);
+            ol.gs
+                .solve(&ol.w, &ol.delta, &mut ol.lambda, &self.controller.params.gs)
+        } else {
+            needle_core::constraint::SolveReport {
+                converged: true,
+                ..Default::default()
+            }
+        };
+        // λ_b = W_bb⁻¹ (δ_b − W_bo λ_o).
+        let mut rhs = nalgebra::Vector6::from(db);
+        for k in 0..6 {
+            for j in 0..n {
+                rhs[k] -= f.w[k][6 + j] * ol.lambda[j];
+            }
+        }
+        let lb = wbb_inv * rhs;
         self.command.q = q;
         self.command.m = m as u32;
         self.command.frame_sequence = f.sequence;
-        self.command.lambda[..m].copy_from_slice(&ol.lambda[..m]);
+        self.command.lambda[..6].copy_from_slice(lb.as_slice());
+        self.command.lambda[6..m].copy_from_slice(&ol.lambda[..n]);
         let report = SolverReport {
             iterations: rep.iterations,
             solves: 1,

@@ -1,0 +1,263 @@
+//! The forward simulation (issue 4) driven open-loop by a given joint trajectory: constraint
+//! residuals, puncture, sliding points, symmetry of a straight insertion, force balance of a
+//! lateral push, embedded path and obstacles.
+
+use nalgebra::Vector3;
+use needle_core::ik::{IkParams, solve_ik};
+use needle_host::bodies::{Simulation, build};
+use needle_host::constraints::GroupRole;
+use needle_host::scene::Scene;
+use needle_host::world::StepReport;
+
+/// A straight vertical insertion on a coarse gel: path from (300, 0, 60) down to z = 20.
+fn vertical_scene(nodes: usize) -> Scene {
+    let text = format!(
+        r#"
+name = "vertical"
+[gel.box]
+min = [260.0, -30.0, 0.0]
+max = [340.0, 30.0, 60.0]
+nodes = {nodes}
+[path]
+points = [[300.0, 0.0, 60.0], [300.0, 0.0, 20.0]]
+approach = 5.0
+[[obstacles]]
+name = "probe"
+center = [310.0, 0.0, 30.0]
+radius = 2.0
+"#
+    );
+    Scene::from_toml_str(&text, "vertical.toml").expect("scene")
+}
+
+/// Joints that put the needle base at `base` with the needle along `axis`, from `seed`.
+fn ik(sim: &Simulation, base: Vector3<f64>, axis: Vector3<f64>, seed: &[f64; 6]) -> [f64; 6] {
+    let r = solve_ik(
+        &sim.chain,
+        [base.x, base.y, base.z],
+        [axis.x, axis.y, axis.z],
+        seed,
+        &IkParams::default(),
+    )
+    .expect("ik");
+    assert!(r.position_error < 1e-3 && r.angle_error < 1e-4, "IK: {r:?}");
+    r.q
+}
+
+/// Moves the needle base straight down by `step` per step for `n` steps (open loop).
+fn descend(sim: &mut Simulation, step: f64, n: usize, reports: &mut Vec<StepReport>) {
+    let axis = Vector3::new(0.0, 0.0, -1.0);
+    for _ in 0..n {
+        let b = sim.base_pose(&sim.q).translation + step * axis;
+        let q = ik(sim, b, axis, &sim.q.clone());
+        let c = sim.c + step;
+        let r = sim.step_with(c, Some(q)).expect("step");
+        assert!(r.tip.iter().all(|v| v.is_finite()));
+        reports.push(r);
+    }
+}
+
+#[test]
+#[ignore = "forward-simulation scenario (release, ~20 s): run with --include-ignored"]
+fn vertical_insertion_punctures_once_slides_and_stays_straight_and_symmetric() {
+    let scene = vertical_scene(600);
+    let mut sim = build(&scene).expect("build");
+    let mut reports = Vec::new();
+    // 5 mm of approach, then 25 mm more.
+    descend(&mut sim, 0.1, 300, &mut reports);
+
+    // Puncture happens when, and only when, the contact's normal force reaches p_f — once.
+    let pf = scene.interaction.puncture_force;
+    let k = reports
+        .iter()
+        .position(|r| r.punctured_now)
+        .expect("the needle punctures the gel");
+    assert_eq!(
+        reports.iter().filter(|r| r.punctured_now).count(),
+        1,
+        "no chattering"
+    );
+    for r in &reports[..k] {
+        assert!(
+            r.contact_force < pf,
+            "step {}: force {} ≥ p_f without puncture",
+            r.step,
+            r.contact_force
+        );
+        assert!(!r.inserted);
+    }
+    assert!(reports[k].contact_force >= pf);
+    assert!(
+        reports[k].contact_force < 1.5 * pf,
+        "puncture overshoot {}",
+        reports[k].contact_force
+    );
+    assert!(
+        reports[k + 1..]
+            .iter()
+            .all(|r| r.inserted && r.contact_force == 0.0)
+    );
+
+    // Sliding points: one at the entry, then one every d_n of depth.
+    let dn = scene.interaction.constraint_spacing;
+    for r in &reports[k + 1..] {
+        let expected = 1 + (r.depth / dn).floor() as usize;
+        assert!(
+            r.sliding_points == expected || r.sliding_points + 1 == expected,
+            "depth {:.2}: {} sliding points, expected {expected}",
+            r.depth,
+            r.sliding_points
+        );
+        // Constraint residual: the shaft passes through every sliding point.
+        assert!(
+            r.residual < 0.05,
+            "step {}: sliding residual {} mm",
+            r.step,
+            r.residual
+        );
+    }
+    let last = reports.last().unwrap();
+    assert!(last.depth > 15.0, "depth {}", last.depth);
+
+    // The base constraint holds: needle base on B(q).
+    let b = sim.base_pose(&sim.q);
+    let base = sim.needle.model.positions()[0];
+    assert!(
+        (base - b.translation).norm() < 1e-3,
+        "base off by {}",
+        (base - b.translation).norm()
+    );
+
+    // The needle stays straight: every node within 0.05 mm of the vertical through the base.
+    for p in sim.needle.model.positions() {
+        let lateral = ((p.x - base.x).powi(2) + (p.y - base.y).powi(2)).sqrt();
+        assert!(
+            lateral < 0.05,
+            "node at {p} is {lateral} mm off the vertical"
+        );
+    }
+
+    // The gel is symmetric about the needle: mirrored nodes (y → −y) have mirrored displacements.
+    let gel = &sim.gel.model;
+    let rest = &gel.mesh().nodes;
+    let umax = gel
+        .positions()
+        .iter()
+        .zip(rest)
+        .map(|(x, x0)| (x - x0).norm())
+        .fold(0.0, f64::max);
+    assert!(umax > 0.05, "the gel barely moved ({umax} mm)");
+    let mut worst: f64 = 0.0;
+    for (i, x0) in rest.iter().enumerate() {
+        let mirror = Vector3::new(x0.x, -x0.y, x0.z);
+        let Some(j) = rest.iter().position(|y| (y - mirror).norm() < 1e-9) else {
+            continue;
+        };
+        let ui = gel.positions()[i] - x0;
+        let uj = gel.positions()[j] - rest[j];
+        let mirrored = Vector3::new(uj.x, -uj.y, uj.z);
+        worst = worst.max((ui - mirrored).norm());
+    }
+    assert!(
+        worst < 0.15 * umax,
+        "asymmetry {worst} mm for a largest displacement of {umax} mm"
+    );
+}
+
+#[test]
+#[ignore = "forward-simulation scenario (release, ~20 s): run with --include-ignored"]
+fn lateral_push_bends_needle_and_gel_with_equal_and_opposite_forces() {
+    let scene = vertical_scene(600);
+    let mut sim = build(&scene).expect("build");
+    let mut reports = Vec::new();
+    descend(&mut sim, 0.1, 250, &mut reports);
+    assert!(sim.punctured && sim.sliding.len() >= 2);
+    let gel_before: Vec<_> = sim.gel.model.positions().to_vec();
+    let tip_before = sim.tip();
+    // Push the base 3 mm along +x, keeping the needle vertical.
+    let axis = Vector3::new(0.0, 0.0, -1.0);
+    for _ in 0..30 {
+        let b = sim.base_pose(&sim.q).translation + Vector3::new(0.1, 0.0, 0.0);
+        let q = ik(&sim, b, axis, &sim.q.clone());
+        let c = sim.c;
+        let r = sim.step_with(c, Some(q)).expect("step");
+        reports.push(r);
+    }
+    // Settle at the final pose.
+    for _ in 0..20 {
+        let q = sim.q;
+        let c = sim.c;
+        reports.push(sim.step_with(c, Some(q)).expect("step"));
+    }
+    // The needle bends: its tip moved less than its base (held by the gel).
+    let base_dx = 3.0;
+    let tip_dx = sim.tip().x - tip_before.x;
+    assert!(
+        tip_dx > 0.0 && tip_dx < 0.9 * base_dx,
+        "tip moved {tip_dx} mm for a 3 mm base push"
+    );
+    // The gel moved along +x around the needle.
+    let mean_dx: f64 = sim
+        .sliding
+        .iter()
+        .map(|s| {
+            s.at.position(sim.gel.model.positions(), &sim.gel.model.mesh().tets)
+                .x
+                - s.at.position(&gel_before, &sim.gel.model.mesh().tets).x
+        })
+        .sum::<f64>()
+        / sim.sliding.len() as f64;
+    assert!(
+        mean_dx > 0.0,
+        "the gel did not follow the push ({mean_dx} mm)"
+    );
+    // Equal and opposite: at equilibrium the base's force on the needle balances the sliding
+    // points' forces on it (and the gel receives the opposite of the latter).
+    let forces = sim.needle_forces();
+    let base: Vector3<f64> = forces
+        .iter()
+        .filter(|(r, _)| *r == GroupRole::Base)
+        .map(|(_, f)| *f)
+        .sum();
+    let sliding: Vector3<f64> = forces
+        .iter()
+        .filter(|(r, _)| matches!(r, GroupRole::Sliding(_)))
+        .map(|(_, f)| *f)
+        .sum();
+    assert!(base.x > 1e-4, "the base pushes the needle along +x: {base}");
+    assert!(sliding.x < -1e-4, "the gel resists the push: {sliding}");
+    let imbalance = (base + sliding).norm();
+    assert!(
+        imbalance < 0.02 * base.norm(),
+        "base {base} + sliding {sliding} = {imbalance} N"
+    );
+    let _ = reports;
+}
+
+#[test]
+#[ignore = "forward-simulation scenario (release): run with --include-ignored"]
+fn embedded_path_and_obstacles_move_with_the_gel() {
+    let scene = vertical_scene(600);
+    let mut sim = build(&scene).expect("build");
+    let mut reports = Vec::new();
+    descend(&mut sim, 0.1, 200, &mut reports);
+    let gel = &sim.gel.model;
+    let tets = &gel.mesh().tets;
+    // The obstacle centre is the barycentric interpolation of its element's current nodes.
+    let (e, _) = sim.obstacles[0];
+    let t = tets[e.tet];
+    let expect: Vector3<f64> = (0..4).map(|k| e.weights[k] * gel.positions()[t[k]]).sum();
+    let rest_centre: Vector3<f64> = (0..4).map(|k| e.weights[k] * gel.mesh().nodes[t[k]]).sum();
+    assert!((rest_centre - Vector3::new(310.0, 0.0, 30.0)).norm() < 1e-9);
+    assert!((e.position(gel.positions(), tets) - expect).norm() < 1e-12);
+    assert!(
+        (expect - rest_centre).norm() > 1e-4,
+        "the gel did not move at the obstacle"
+    );
+    // The target moves with the gel: it is no longer at its rest position.
+    let c = sim.c;
+    let rest_target = sim.path.at(c).0;
+    let target = sim.target(c);
+    assert!((target - rest_target).norm() > 1e-4);
+    assert!((target - rest_target).norm() < 5.0);
+}
