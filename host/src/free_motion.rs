@@ -27,6 +27,9 @@
 //!   step), or when [`GelModel::request_refactor`] is called.
 //! - All buffers are allocated at construction.
 
+// Negated comparisons are deliberate: NaN must fail every validity check.
+#![allow(clippy::neg_cmp_op_on_partial_ord, clippy::nonminimal_bool)]
+
 use crate::fem::beam::{self, BeamSection, CorotationalBeams};
 use crate::fem::tetra::{self, CorotationalTetra, Kinematics};
 use crate::fem::{Elasticity, FemError};

@@ -29,6 +29,9 @@
 //! the usual non-symmetric part of spin-variable tangents, which a Cholesky solver cannot take;
 //! it vanishes for planar bending and Newton still converges fast).
 
+// Negated comparisons are deliberate: NaN must fail every validity check.
+#![allow(clippy::neg_cmp_op_on_partial_ord, clippy::nonminimal_bool)]
+
 use super::hyperdual::{self, Hd, V3};
 use super::{Elasticity, FemError};
 use nalgebra::{Matrix3, SMatrix, SVector, UnitQuaternion, Vector3};
@@ -293,8 +296,7 @@ impl CorotationalBeams {
         let du = l + (-l0);
         let tw = theta[1][0] - theta[0][0];
         let mut energy = du * du * (0.5 * self.ea / l0) + tw * tw * (0.5 * self.gj / l0);
-        for k in 1..3 {
-            let (t1, t2) = (theta[0][k], theta[1][k]);
+        for (&t1, &t2) in theta[0].iter().zip(&theta[1]).skip(1) {
             energy = energy + (t1 * t1 + t1 * t2 + t2 * t2) * (2.0 * self.ei / l0);
         }
         let mut force = SVector::<f64, 12>::zeros();

@@ -1,6 +1,9 @@
 //! Finite elements of the free-motion stage (paper §III-B, eq. 1): corotational linear
 //! tetrahedra for the gel ([`tetra`]) and corotational 3-D beams for the needle ([`beam`]).
 
+// Negated comparisons are deliberate: NaN must fail every validity check.
+#![allow(clippy::neg_cmp_op_on_partial_ord, clippy::nonminimal_bool)]
+
 pub mod beam;
 mod hyperdual;
 pub mod tetra;

@@ -20,6 +20,9 @@
 //! Storage is contiguous per quantity (struct of arrays): tets, `D_m⁻¹`, volumes, shape
 //! gradients, rotations.
 
+// Negated comparisons are deliberate: NaN must fail every validity check.
+#![allow(clippy::neg_cmp_op_on_partial_ord, clippy::nonminimal_bool)]
+
 use super::{Elasticity, FemError};
 use crate::mesh::TetMesh;
 use nalgebra::{Matrix3, SMatrix, Vector3};
@@ -68,10 +71,10 @@ pub fn rotation_from_deformation(f: &Matrix3<f64>) -> Matrix3<f64> {
     // (X ← ½(γX + X⁻ᵀ/γ)) converges quadratically to the same orthogonal polar factor U Vᵀ;
     // 3–4 iterations at small strain, far cheaper than an eigen-decomposition.
     let scale3 = (f.norm_squared() / 3.0).powf(1.5);
-    if f.determinant() > 1e-3 * scale3 {
-        if let Some(r) = polar_newton(f) {
-            return r;
-        }
+    if f.determinant() > 1e-3 * scale3
+        && let Some(r) = polar_newton(f)
+    {
+        return r;
     }
     rotation_from_deformation_svd(f)
 }
@@ -205,11 +208,12 @@ impl CorotationalTetra {
                     quality: 0.0,
                 },
             ))?;
-            let mut g = [Vector3::zeros(); 4];
-            for a in 1..4 {
-                g[a] = inv.row(a - 1).transpose();
-            }
-            g[0] = -(g[1] + g[2] + g[3]);
+            let (g1, g2, g3) = (
+                inv.row(0).transpose(),
+                inv.row(1).transpose(),
+                inv.row(2).transpose(),
+            );
+            let g = [-(g1 + g2 + g3), g1, g2, g3];
             dm_inv.push(inv);
             volumes.push(dm.determinant() / 6.0);
             grads.push(g);

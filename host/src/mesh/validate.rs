@@ -1,6 +1,9 @@
 //! Mesh validation: every element must reference existing nodes, be positively oriented and
 //! non-degenerate, and appear once; every node must be used.
 
+// Negated comparisons are deliberate: NaN must fail every validity check.
+#![allow(clippy::neg_cmp_op_on_partial_ord, clippy::nonminimal_bool)]
+
 use super::TetMesh;
 use std::fmt;
 
