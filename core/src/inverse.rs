@@ -17,15 +17,16 @@
 //!    `λ_q` — more precisely from the linear prediction `λ_q + Z (δ_b(q + δq e_i) − δ_b(q))`, exact
 //!    while no row changes status, where `Z` is the response of the rows left free by the base
 //!    solve (one dense factorisation per frame, [`ActiveSet`]); Gauss-Seidel then confirms or
-//!    repairs it to full tolerance: `J_i = (T(q + δq e_i) − T(q)) / δq`. (The paper's eq. 14 writes the negative,
-//!    `(T(q) − T(q + δq_i)) / δq`, with `Δq = J⁻¹ T`; both give the same Newton step.)
+//!    repairs it to `jacobian_tolerance`: `J_i = (T(q + δq e_i) − T(q)) / δq`. (The paper's
+//!    eq. 14 writes the negative, `(T(q) − T(q + δq_i)) / δq`, with `Δq = J⁻¹ T`; both give the
+//!    same Newton step.)
 //!    The angular row is differenced through the rotation vectors whose norms are θ1 and θ2
 //!    (`dθ = φ̂ · dφ`, see [`Objective`]): differencing the angle itself is wrong once θ is
 //!    smaller than the change δq causes (a norm's one-sided difference near its minimum gives
 //!    `|dφ|`, not `φ̂ · dφ`), which stalls the Newton iteration at θ ≈ δq·|∂φ/∂q|.
 //! 5. damped least squares `Δq = −Jᵀ (J Jᵀ + ε² I)⁻¹ T`, so that `T + J Δq ≈ 0`; `ε` grows when
-//!    the smallest singular value of `J` falls below a threshold (the RV-1A wrist is near singular
-//!    in the benchmark pose);
+//!    the smallest singular value σ of `J` falls below a threshold σ₀ (the RV-1A wrist is near
+//!    singular in the benchmark pose): `ε² = ε_min² + (1 − (σ/σ₀)²) ε_max²` for `σ < σ₀`;
 //! 6. scale `Δq` uniformly so that `|Δq_i| ≤ v_max,i · dt` (keeps the Newton direction), then clamp
 //!    `q + Δq` into the joint limits; both are reported as saturation flags;
 //! 7. final solve at `q + Δq` (started from the same prediction) → the `λ` the host applies.
