@@ -72,8 +72,8 @@ fn rigid_tip(free: &Pose, b: &Pose, length: f64) -> (Vector3<f64>, Vector3<f64>)
 /// `W = diag(c_t I, c_r I)` [mm/N, rad/(N·mm)], the needle base resting (free motion) at
 /// `B(q_free)`, a rigid needle of `length` [mm] along the base z axis, so that
 /// `tip = p_free + u_p + L z + u_r × L z` with `(u_p, u_r) = W λ` — linear in `λ`. The target is
-/// this model's tip at `q_target` and the tangent its direction there; the entry point is the
-/// target. `frame.q = q_free`, `dt` = 1 s, not inserted.
+/// this model's tip at `q_target` and the tangent its direction there; the entry point lies
+/// `L/4` behind the target along that direction. `frame.q = q_free`, `dt` = 1 s, not inserted.
 pub fn rigid_needle_frame<const M: usize>(
     frame: &mut ComplianceFrame<M>,
     chain: &DhChain<JOINTS>,
@@ -112,7 +112,9 @@ pub fn rigid_needle_frame<const M: usize>(
     for r in 0..3 {
         frame.o_free[ObsIndex::TARGET_POINT + r] = tip[r];
         frame.o_free[ObsIndex::TARGET_TANGENT + r] = dir[r];
-        frame.o_free[ObsIndex::ENTRY_POINT + r] = tip[r];
+        // A quarter of the needle behind the tip, on the target direction: pivoting about the
+        // tip then changes θ2, so (e, θ2) are independent objectives.
+        frame.o_free[ObsIndex::ENTRY_POINT + r] = tip[r] - 0.25 * length * dir[r];
     }
     frame.q = *q_free;
     frame.dt = 1.0;

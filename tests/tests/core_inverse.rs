@@ -146,3 +146,30 @@ fn random_frames_step_to_finite_commands() {
         );
     }
 }
+
+/// Deep in the gel (depth ≥ d, k = 0) only θ2 counts: the angle between the needle base axis and
+/// the direction from the base to the entry point. In the rigid-needle frame the entry point is
+/// the target, so reaching the target also zeroes θ2: the step must converge on (e, θ2).
+#[test]
+fn newton_steps_converge_with_base_angle_when_inserted() {
+    let chain = DhChain::rv1a();
+    let mut frame = boxed_frame();
+    let mut cmd = boxed_command();
+    let q_free = [0.25, 0.3, 2.05, 0.05, 0.55, -0.25];
+    rigid_needle_frame(&mut frame, &chain, &q_free, &Q_TARGET, 120.0);
+    frame.inserted = 1;
+    frame.insertion_depth = 50.0;
+    let mut ctrl = Controller::<M>::new(chain, InverseParams::default());
+    let mut q = q_free;
+    let mut last = f64::INFINITY;
+    for step in 0..10 {
+        frame.q = q;
+        let rep = ctrl.step(&frame, &mut cmd).expect("valid frame");
+        let n = norm(&rep.objective);
+        println!("step {step}: |T| = {n:.3e} mm, flags {:#x}", rep.flags);
+        assert!(n <= last * 1.0001, "step {step}: {n} after {last}");
+        last = n;
+        q = cmd.q;
+    }
+    assert!(last < 1e-2, "{last}");
+}
