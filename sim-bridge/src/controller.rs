@@ -436,10 +436,13 @@ impl<const M: usize> ControllerNode<M> {
             self.holding = true;
             self.stats.hold_events += 1;
             self.log(format_args!(
-                "no fresh frame for {:.0} ms (deadline {:.0} ms): holding the robot at {:?}",
+                "no fresh frame for {:.0} ms (deadline {:.0} ms): holding the robot at q = {} rad",
                 silent.as_secs_f64() * 1e3,
                 self.opts.bridge.deadline.as_secs_f64() * 1e3,
-                self.last_q.unwrap_or_default()
+                match self.last_q {
+                    Some(q) => format!("{q:.5?}"),
+                    None => "(no command yet)".into(),
+                }
             ));
             self.cleanup();
         } else if self.last_cleanup.elapsed() > Duration::from_secs(1) {

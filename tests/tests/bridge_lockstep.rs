@@ -4,7 +4,10 @@
 //! process (`needle_host::run::run`, [`needle_bridge::InProcess`]) and once with the core in a
 //! child process — this test binary re-run as a `needle-controller` at 1 kHz — over iceoryx2
 //! shared memory (`run_with` + [`needle_bridge::SharedMemoryHost`]). Every step's tip, joints,
-//! error and λ norms must be equal exactly.
+//! error and λ norms must be equal exactly — in lock-step (the host waits for each answer) and
+//! free-running (the host starts a step every 40 ms, the controller ticks at 1 kHz: as long as
+//! the host applies only the command answering its frame, and holds otherwise, the trajectory is
+//! the same).
 
 #[path = "bridge_util/mod.rs"]
 mod util;
@@ -52,6 +55,18 @@ fn quiet_logs_once() {
 
 #[test]
 fn two_process_lockstep_equals_one_process_bit_for_bit() {
+    two_processes_equal_one(TEST, None);
+}
+
+#[test]
+fn two_process_free_running_equals_one_process_bit_for_bit() {
+    two_processes_equal_one(
+        "two_process_free_running_equals_one_process_bit_for_bit",
+        Some(Duration::from_millis(40)),
+    );
+}
+
+fn two_processes_equal_one(test: &str, period: Option<Duration>) {
     if let Ok(role) = std::env::var(ROLE) {
         assert_eq!(role, "controller");
         controller_role();
@@ -75,8 +90,8 @@ fn two_process_lockstep_equals_one_process_bit_for_bit() {
     let instance = unique_instance("lockstep");
     let setup = setup_fingerprint(&scene.robot(), &scene.inverse_params());
     let mut host = SharedMemoryHost::<ROWS>::connect(&config(&instance), setup).expect("host");
-    let mut child = spawn_role(TEST, "controller", &[(INSTANCE, instance.clone())]);
-    let two = run_with(&scene, &opts, &mut host, |_| {});
+    let mut child = spawn_role(test, "controller", &[(INSTANCE, instance.clone())]);
+    let two = run_with(&scene, &RunOptions { period, ..opts }, &mut host, |_| {});
     let (status, out) = wait_child(&mut child, Duration::from_secs(60));
     let two = two.expect("two-process run");
     println!("{out}");

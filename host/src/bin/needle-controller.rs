@@ -76,10 +76,15 @@ fn main() -> ExitCode {
             return ExitCode::from(2);
         }
     };
-    if !(cli.deadline_ms > 0.0 && cli.deadline_ms.is_finite()) || !(cli.rate >= 0.0) {
+    let valid = cli.deadline_ms.is_finite()
+        && cli.deadline_ms > 0.0
+        && cli.rate.is_finite()
+        && cli.rate >= 0.0;
+    if !valid {
         eprintln!("error: --deadline-ms must be positive and --rate non-negative");
         return ExitCode::from(2);
     }
+    needle_bridge::shm::quiet_logs();
     let opts = ControllerOptions {
         bridge: BridgeConfig {
             instance: cli.instance,

@@ -300,6 +300,7 @@ fn main() -> ExitCode {
                 ..BridgeConfig::default()
             };
             let setup = setup_fingerprint(&scene.robot(), &scene.inverse_params());
+            needle_bridge::shm::quiet_logs();
             let mut host = match SharedMemoryHost::<ROWS>::connect(&cfg, setup) {
                 Ok(h) => h,
                 Err(e) => {
