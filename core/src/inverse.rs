@@ -43,6 +43,7 @@ use crate::math::{angle_between, rotation_log};
 use crate::payload::{
     Command, ComplianceFrame, JOINTS, ObsIndex, SolverReport, StatusFlags, VERSION, ValidationError,
 };
+use crate::reduce::BaseElimination;
 use core::fmt;
 use nalgebra::{Matrix3, Matrix4, SMatrix, SVector, Vector3, Vector4};
 
@@ -75,6 +76,11 @@ pub struct InverseParams {
     pub active_set: bool,
     /// Tolerance of the first, loose Gauss-Seidel pass that finds the active set (default 1e-5).
     pub presolve_tolerance: f64,
+    /// Eliminate the 6 base rows exactly before Gauss-Seidel (default true; see
+    /// [`crate::reduce`]): removes the free needle's rigid-body compliance that every
+    /// needle-side row shares, without which Gauss-Seidel stalls on real host frames. The
+    /// active-set prediction is not used in this mode.
+    pub eliminate_base: bool,
     /// Gauss-Seidel tolerance of the 6 Jacobian solves (default 1e-5): their error enters `J`
     /// divided by `δq`, and a relative solve error of 1e-5 is far below the forward difference's
     /// own truncation error (of order `δq`). The base and final solves use `gs.tolerance`.
@@ -101,6 +107,7 @@ impl Default for InverseParams {
             },
             warm_start: true,
             active_set: true,
+            eliminate_base: true,
             presolve_tolerance: 1e-5,
             jacobian_tolerance: 1e-5,
         }
@@ -288,6 +295,9 @@ pub struct Controller<const M: usize> {
     set: ActiveSet<M>,
     set_valid: bool,
     delta_base: [f64; 6],
+    red: BaseElimination<M>,
+    lr_base: [f64; M],
+    lr_work: [f64; M],
 }
 
 impl<const M: usize> Controller<M> {
@@ -311,6 +321,9 @@ impl<const M: usize> Controller<M> {
             set: ActiveSet::new(),
             set_valid: false,
             delta_base: [0.0; 6],
+            red: BaseElimination::new(),
+            lr_base: [0.0; M],
+            lr_work: [0.0; M],
         }
     }
 
@@ -383,6 +396,11 @@ impl<const M: usize> Controller<M> {
     /// exactly by a dense factorisation (also giving their response `Z` to the base rows), and
     /// Gauss-Seidel confirms the result to the full tolerance (repairing any status change).
     fn solve_base(&mut self, frame: &ComplianceFrame<M>, q: &[f64; JOINTS]) -> (Pose, SolveReport) {
+        if self.params.eliminate_base {
+            let n = self.red.rows();
+            self.lr_base[..n].copy_from_slice(&self.lambda_base[6..6 + n]);
+            return self.solve_reduced(frame, q, true, self.params.gs.tolerance);
+        }
         let b = self.chain.tool_pose(q);
         let d = base_violation(&b, &frame.p_free, &frame.r_free);
         self.delta[..6].copy_from_slice(&d);
@@ -442,6 +460,11 @@ impl<const M: usize> Controller<M> {
         q: &[f64; JOINTS],
         tolerance: f64,
     ) -> (Pose, SolveReport) {
+        if self.params.eliminate_base {
+            let n = self.red.rows();
+            self.lr_work[..n].copy_from_slice(&self.lr_base[..n]);
+            return self.solve_reduced(frame, q, false, tolerance);
+        }
         let b = self.chain.tool_pose(q);
         let d = base_violation(&b, &frame.p_free, &frame.r_free);
         self.delta[..6].copy_from_slice(&d);
@@ -466,6 +489,61 @@ impl<const M: usize> Controller<M> {
         (b, rep)
     }
 
+    /// Builds the base elimination of a validated frame and prepares the reduced blocks.
+    fn prepare_reduced(&mut self, frame: &ComplianceFrame<M>) -> Result<(), StepError> {
+        if !self.red.prepare(frame) {
+            return Err(StepError::NonFinite {
+                stage: "base block of W (not positive definite)",
+            });
+        }
+        let n = self.red.rows();
+        if n > 0 {
+            self.gs.prepare(&self.red.w, n, self.red.groups())?;
+        }
+        Ok(())
+    }
+
+    /// A solve on the reduced problem at joints `q` (warm start: `lr_base` or `lr_work`), its
+    /// full λ written to `lambda_base` or `lambda_work`.
+    fn solve_reduced(
+        &mut self,
+        frame: &ComplianceFrame<M>,
+        q: &[f64; JOINTS],
+        into_base: bool,
+        tolerance: f64,
+    ) -> (Pose, SolveReport) {
+        let b = self.chain.tool_pose(q);
+        let d = base_violation(&b, &frame.p_free, &frame.r_free);
+        self.delta_base = d;
+        self.set_valid = false;
+        self.red.reduce_delta(frame, &d);
+        let n = self.red.rows();
+        let gs = GsParams {
+            tolerance,
+            ..self.params.gs
+        };
+        let lr = if into_base {
+            &mut self.lr_base
+        } else {
+            &mut self.lr_work
+        };
+        let rep = if n > 0 {
+            self.gs.solve(&self.red.w, &self.red.delta, lr, &gs)
+        } else {
+            SolveReport {
+                converged: true,
+                ..SolveReport::default()
+            }
+        };
+        let (lr, full) = if into_base {
+            (&self.lr_base, &mut self.lambda_base)
+        } else {
+            (&self.lr_work, &mut self.lambda_work)
+        };
+        self.red.expand(frame, &d, lr, full);
+        (b, rep)
+    }
+
     /// The objective `T(q)` at joints `q` for `frame` (one constraint solve, from zero). For
     /// tests and diagnostics; not part of the real-time path.
     ///
@@ -480,7 +558,13 @@ impl<const M: usize> Controller<M> {
         let m = frame.rows();
         self.delta[..m].copy_from_slice(&frame.delta_free[..m]);
         self.lambda_work.fill(0.0);
-        let (b, _) = self.solve_at(frame, q);
+        let (b, _) = if self.params.eliminate_base {
+            self.prepare_reduced(frame)?;
+            self.lr_work.fill(0.0);
+            self.solve_reduced(frame, q, false, self.params.gs.tolerance)
+        } else {
+            self.solve_at(frame, q)
+        };
         Ok(evaluate_objective(
             frame,
             &self.lambda_work,
@@ -500,8 +584,12 @@ impl<const M: usize> Controller<M> {
         cmd: &mut Command<M>,
     ) -> Result<SolverReport, StepError> {
         self.check_params()?;
-        // 1. validate + factor the diagonal blocks once for the 8 solves.
+        // 1. validate + factor the diagonal blocks once for the 8 solves (of the reduced
+        //    problem when the base rows are eliminated).
         self.gs.prepare_frame(frame)?;
+        if self.params.eliminate_base {
+            self.prepare_reduced(frame)?;
+        }
         let m = frame.rows();
         let p = self.params;
         self.delta[..m].copy_from_slice(&frame.delta_free[..m]);

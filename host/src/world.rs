@@ -34,6 +34,7 @@ use needle_core::kinematics::{DhChain, Pose};
 use needle_core::payload::{
     Command, ComplianceFrame, GroupKind, JOINTS, SolverReport, StatusFlags,
 };
+use needle_core::reduce::BaseElimination;
 use std::fmt;
 use std::time::Instant;
 
@@ -153,9 +154,7 @@ struct Pending {
 /// Scratch of the open-loop mode (a single solve at given joints).
 struct OpenLoop {
     gs: BlockGs<ROWS>,
-    w: [[f64; ROWS]; ROWS],
-    s: [[f64; 6]; ROWS],
-    delta: [f64; ROWS],
+    red: BaseElimination<ROWS>,
     lambda: [f64; ROWS],
 }
 
@@ -398,9 +397,7 @@ impl<G: GelBody, N: NeedleBody> World<G, N> {
             pending: Pending::default(),
             open_loop: Box::new(OpenLoop {
                 gs: BlockGs::new(),
-                w: [[0.0; ROWS]; ROWS],
-                s: [[0.0; 6]; ROWS],
-                delta: [0.0; ROWS],
+                red: BaseElimination::new(),
                 lambda: [0.0; ROWS],
             }),
             set: ConstraintSet::default(),
@@ -727,84 +724,37 @@ impl<G: GelBody, N: NeedleBody> World<G, N> {
         f.validate()
             .map_err(|e| SimError::Core(StepError::InvalidFrame(e)))?;
         let m = f.rows();
-        let b = self.chain.tool_pose(&q);
-        let db = base_violation(&b, &f.p_free, &f.r_free);
-        // Eliminate the 6 bilateral base rows exactly (Schur complement): the other rows see the
-        // needle clamped at its base, which removes the free needle's huge rigid-body compliance
-        // shared by every needle-side row (it makes W nearly singular for Gauss-Seidel).
-        let wbb = nalgebra::Matrix6::from_fn(|i, j| f.w[i][j]);
-        let wbb_inv = wbb
-            .try_inverse()
-            .ok_or(SimError::NonFinite("base block of W"))?;
-        let n = m - 6;
-        // S = W_ob W_bb⁻¹ (n × 6).
-        for i in 0..n {
-            let wob = nalgebra::RowVector6::from_fn(|_, j| f.w[6 + i][j]);
-            let srow = wob * wbb_inv;
-            for j in 0..6 {
-                ol.s[i][j] = srow[j];
-            }
+        let db = base_violation(&self.chain.tool_pose(&q), &f.p_free, &f.r_free);
+        // The base rows are eliminated exactly, as in the core's inverse step (see
+        // `needle_core::reduce`): Gauss-Seidel on the other rows with the needle clamped at its base.
+        if !ol.red.prepare(f) {
+            return Err(SimError::NonFinite("base block of W"));
         }
-        for i in 0..n {
-            for j in 0..n {
-                let mut v = f.w[6 + i][6 + j];
-                for k in 0..6 {
-                    v -= ol.s[i][k] * f.w[k][6 + j];
-                }
-                ol.w[i][j] = v;
-            }
-            let mut d = f.delta_free[6 + i];
-            for k in 0..6 {
-                d -= ol.s[i][k] * db[k];
-            }
-            ol.delta[i] = d;
-        }
-        // Symmetrise against round-off.
-        for i in 0..n {
-            for j in 0..i {
-                let v = 0.5 * (ol.w[i][j] + ol.w[j][i]);
-                ol.w[i][j] = v;
-                ol.w[j][i] = v;
-            }
-        }
-        let groups: Vec<_> = f.used_groups()[1..]
-            .iter()
-            .map(|g| {
-                let mut g = *g;
-                g.start -= 6;
-                g
-            })
-            .collect();
+        let n = ol.red.rows();
+        ol.red.reduce_delta(f, &db);
+        // Warm start from the previous λ of the same rows.
+        ol.lambda[..n].copy_from_slice(&self.command.lambda[6..6 + n]);
+        ol.lambda[n..].fill(0.0);
         let rep = if n > 0 {
             ol.gs
-                .prepare(&ol.w, n, &groups)
+                .prepare(&ol.red.w, n, ol.red.groups())
                 .map_err(|e| SimError::Core(StepError::InvalidFrame(e)))?;
-            // Warm start from the previous λ of the same rows.
-            for i in 0..n {
-                ol.lambda[i] = self.command.lambda[6 + i];
-            }
-            ol.lambda[n..].fill(0.0);
-            ol.gs
-                .solve(&ol.w, &ol.delta, &mut ol.lambda, &self.controller.params.gs)
+            ol.gs.solve(
+                &ol.red.w,
+                &ol.red.delta,
+                &mut ol.lambda,
+                &self.controller.params.gs,
+            )
         } else {
             needle_core::constraint::SolveReport {
                 converged: true,
                 ..Default::default()
             }
         };
-        // λ_b = W_bb⁻¹ (δ_b − W_bo λ_o).
-        let mut rhs = nalgebra::Vector6::from(db);
-        for k in 0..6 {
-            for j in 0..n {
-                rhs[k] -= f.w[k][6 + j] * ol.lambda[j];
-            }
-        }
-        let lb = wbb_inv * rhs;
+        ol.red.expand(f, &db, &ol.lambda, &mut self.command.lambda);
         self.command.q = q;
         self.command.m = m as u32;
         self.command.frame_sequence = f.sequence;
-        self.command.lambda[..6].copy_from_slice(lb.as_slice());
-        self.command.lambda[6..m].copy_from_slice(&ol.lambda[..n]);
         let report = SolverReport {
             iterations: rep.iterations,
             solves: 1,

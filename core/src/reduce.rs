@@ -1,0 +1,169 @@
+//! Exact elimination of the 6 needle-base rows before the iterative solve.
+//!
+//! The needle hangs on its base constraint χ only, so the host's `K_n` is regularised by a tiny
+//! `M/h²` and its rigid-body modes have a *huge* compliance. Every needle-side row (base, tip
+//! contact, sliding points) shares those modes: in `W` the base rows and, e.g., a contact row are
+//! nearly collinear (`W ≈ [[a, a], [a, a + ε]]` with `a/ε ~ 10³`), and Gauss-Seidel crawls or
+//! stalls. The base rows are bilateral and always present, so they can be eliminated exactly
+//! (Schur complement):
+//!
+//! ```text
+//! W' = W_oo − W_ob W_bb⁻¹ W_bo,     δ'(q) = δ_o − W_ob W_bb⁻¹ δ_b(q)
+//! λ_o = LCP(W', δ'(q)),             λ_b = W_bb⁻¹ (δ_b(q) − W_bo λ_o)
+//! ```
+//!
+//! `W'` is the compliance of the other rows *with the needle clamped at its base*: physical,
+//! well conditioned (needle bending + gel), and the same for every `q` of a step, so it is built
+//! once per frame (`O(m² · 6)`) and each of the step's solves only forms `δ'` (`O(6 m)`).
+
+use crate::payload::{BASE_ROWS, ComplianceFrame, RowGroup};
+use nalgebra::{Matrix6, Vector6};
+
+/// The reduced problem of one frame: `W'`, the groups after the base, and the maps between full
+/// and reduced quantities. About `8 M² + 64 M` bytes.
+#[derive(Clone, Debug)]
+pub struct BaseElimination<const M: usize> {
+    /// `W'` in rows/columns `0..n` (`n = m − 6`).
+    pub w: [[f64; M]; M],
+    /// `S = W_ob W_bb⁻¹`, one row per reduced row.
+    s: [[f64; 6]; M],
+    /// `W_bb⁻¹`.
+    wbb_inv: [[f64; 6]; 6],
+    /// The frame's groups after the base, starts shifted by −6.
+    groups: [RowGroup; M],
+    n_groups: usize,
+    n: usize,
+    /// `δ'` of the last [`Self::reduce_delta`].
+    pub delta: [f64; M],
+}
+
+impl<const M: usize> BaseElimination<M> {
+    /// An empty reduction.
+    pub const fn new() -> Self {
+        const EMPTY: RowGroup = RowGroup {
+            kind: 0,
+            start: 0,
+            len: 0,
+            reserved: 0,
+            mu: 0.0,
+            r0: 0.0,
+        };
+        Self {
+            w: [[0.0; M]; M],
+            s: [[0.0; 6]; M],
+            wbb_inv: [[0.0; 6]; 6],
+            groups: [EMPTY; M],
+            n_groups: 0,
+            n: 0,
+            delta: [0.0; M],
+        }
+    }
+
+    /// Rows of the reduced problem.
+    pub fn rows(&self) -> usize {
+        self.n
+    }
+
+    /// Groups of the reduced problem.
+    pub fn groups(&self) -> &[RowGroup] {
+        &self.groups[..self.n_groups]
+    }
+
+    /// Builds `W'`, `S` and the groups for a *validated* frame. Returns `false` (and leaves an
+    /// empty reduction) if `W_bb` is not positive definite.
+    pub fn prepare(&mut self, frame: &ComplianceFrame<M>) -> bool {
+        let m = frame.rows().min(M);
+        let w = &frame.w;
+        self.n = 0;
+        self.n_groups = 0;
+        let wbb = Matrix6::from_fn(|i, j| 0.5 * (w[i][j] + w[j][i]));
+        let Some(ch) = wbb.cholesky() else {
+            return false;
+        };
+        let inv = ch.inverse();
+        if !inv.iter().all(|x| x.is_finite()) {
+            return false;
+        }
+        for i in 0..6 {
+            for j in 0..6 {
+                self.wbb_inv[i][j] = inv[(i, j)];
+            }
+        }
+        let n = m.saturating_sub(BASE_ROWS);
+        for i in 0..n {
+            let r = &w[BASE_ROWS + i];
+            for k in 0..6 {
+                let mut v = 0.0;
+                for j in 0..6 {
+                    v += r[j] * self.wbb_inv[j][k];
+                }
+                self.s[i][k] = v;
+            }
+        }
+        for i in 0..n {
+            let si = self.s[i];
+            for j in 0..=i {
+                let mut v = w[BASE_ROWS + i][BASE_ROWS + j];
+                for k in 0..6 {
+                    v -= si[k] * w[k][BASE_ROWS + j];
+                }
+                self.w[i][j] = v;
+                self.w[j][i] = v;
+            }
+        }
+        for (k, g) in frame.used_groups().iter().skip(1).enumerate() {
+            self.groups[k] = RowGroup {
+                start: g.start.saturating_sub(BASE_ROWS as u32),
+                ..*g
+            };
+            self.n_groups = k + 1;
+        }
+        self.n = n;
+        true
+    }
+
+    /// `δ' = δ_o − S δ_b` from the frame's other rows and the base violation `delta_b`.
+    pub fn reduce_delta(&mut self, frame: &ComplianceFrame<M>, delta_b: &[f64; 6]) {
+        for i in 0..self.n {
+            let mut d = frame.delta_free[BASE_ROWS + i];
+            for k in 0..6 {
+                d -= self.s[i][k] * delta_b[k];
+            }
+            self.delta[i] = d;
+        }
+    }
+
+    /// The full `λ` from the reduced `lambda_o` (rows `0..n`): `λ_b = W_bb⁻¹ (δ_b − W_bo λ_o)`,
+    /// `λ_o` copied after it.
+    pub fn expand(
+        &self,
+        frame: &ComplianceFrame<M>,
+        delta_b: &[f64; 6],
+        lambda_o: &[f64; M],
+        full: &mut [f64; M],
+    ) {
+        let mut rhs = Vector6::from(*delta_b);
+        for k in 0..6 {
+            let row = &frame.w[k][BASE_ROWS..BASE_ROWS + self.n];
+            let mut v = 0.0;
+            for (a, b) in row.iter().zip(&lambda_o[..self.n]) {
+                v += a * b;
+            }
+            rhs[k] -= v;
+        }
+        for k in 0..6 {
+            let mut v = 0.0;
+            for j in 0..6 {
+                v += self.wbb_inv[k][j] * rhs[j];
+            }
+            full[k] = v;
+        }
+        full[BASE_ROWS..BASE_ROWS + self.n].copy_from_slice(&lambda_o[..self.n]);
+    }
+}
+
+impl<const M: usize> Default for BaseElimination<M> {
+    fn default() -> Self {
+        Self::new()
+    }
+}
