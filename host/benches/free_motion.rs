@@ -5,7 +5,7 @@
 //! - `assemble_gel_<n>_nodes`: corotational update (polar decompositions), internal forces and
 //!   the values of `K + M/h²` written into the fixed pattern;
 //! - `factor_gel_<n>_nodes`: the numeric sparse Cholesky factorisation (symbolic done once);
-//! - `solve_gel_<n>_nodes`: one solve with the current factor;
+//! - `solve_gel_<n>_nodes`: one solve with the current factor (and `…_30_rhs`: 30 at once);
 //! - `free_motion_needle_40_beams`: one full needle step (forces, Hessians, factor, solve).
 //!
 //! Run: `cargo bench -p needle-host --bench free_motion` (add `-- --quick` for a fast pass).
@@ -74,6 +74,20 @@ fn bench_gel(c: &mut Criterion) {
                 model.solve(black_box(&mut x)).expect("factorised");
             })
         });
+        if target <= 1800 {
+            // Compliance needs one column per constraint row: 30 right-hand sides at once.
+            let cols = 30;
+            let rhs_many: Vec<f64> = (0..cols * model.dof_count()).map(|_| rng.next()).collect();
+            let mut xm = rhs_many.clone();
+            group.bench_function(format!("solve_gel_{target}_nodes_{cols}_rhs"), |b| {
+                b.iter(|| {
+                    xm.copy_from_slice(&rhs_many);
+                    model
+                        .solve_columns(black_box(&mut xm), cols)
+                        .expect("factorised");
+                })
+            });
+        }
         group.finish();
         eprintln!(
             "gel target {target}: {n} nodes, {} tets, {} free dofs",

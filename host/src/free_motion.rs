@@ -52,6 +52,7 @@ struct ReducedSystem {
     regularization: Vec<f64>,
     chol: Cholesky,
     work: Vec<f64>,
+    work_many: Vec<f64>,
     /// Steps since the last numeric factorisation (`None`: never factorised).
     factor_age: Option<usize>,
     refactor_every: usize,
@@ -104,6 +105,7 @@ impl ReducedSystem {
                 regularization,
                 chol,
                 work: vec![0.0; n],
+                work_many: Vec::new(),
                 factor_age: None,
                 refactor_every: refactor_every.max(1),
                 refactor_requested: false,
@@ -159,13 +161,17 @@ impl ReducedSystem {
             });
         }
         let n = self.free.len();
-        let mut buf = vec![0.0; n * ncols];
+        // Grows once to the largest column count used, then reused.
+        if self.work_many.len() < n * ncols {
+            self.work_many.resize(n * ncols, 0.0);
+        }
+        let buf = &mut self.work_many[..n * ncols];
         for c in 0..ncols {
             for (k, &g) in self.free.iter().enumerate() {
                 buf[c * n + k] = rhs[c * ndof + g];
             }
         }
-        self.chol.solve_many_in_place(&mut buf, ncols)?;
+        self.chol.solve_many_in_place(buf, ncols)?;
         rhs.iter_mut().for_each(|v| *v = 0.0);
         for c in 0..ncols {
             for (k, &g) in self.free.iter().enumerate() {
@@ -748,6 +754,12 @@ impl NeedleModel {
             self.orientations[i] = UnitQuaternion::new_normalize(q.into_inner());
         }
         Ok(())
+    }
+
+    /// Includes (default) or drops the geometric stiffness of the beams in the factorised
+    /// matrix (see [`CorotationalBeams::set_geometric_stiffness`]).
+    pub fn set_geometric_stiffness(&mut self, on: bool) {
+        self.beams.set_geometric_stiffness(on);
     }
 
     /// Moves the whole needle rigidly so that the base node (node 0) takes the pose `base`
