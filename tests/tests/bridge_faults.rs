@@ -5,9 +5,12 @@
 #[path = "bridge_util/mod.rs"]
 mod util;
 
-use needle_bridge::iceoryx2::prelude::PortFactory as _;
+use needle_bridge::iceoryx2::node::NodeView;
+use needle_bridge::iceoryx2::prelude::{
+    CallbackProgression, Config, Node, NodeState, PortFactory as _, ipc,
+};
 use needle_bridge::shm::{cleanup_dead_nodes, create_node};
-use needle_bridge::{ControllerNode, ControllerOptions, Rejection, SharedMemoryHost};
+use needle_bridge::{BridgeConfig, ControllerNode, ControllerOptions, Rejection, SharedMemoryHost};
 use needle_bridge::{Transport, TransportError, setup_fingerprint};
 use needle_core::inverse::InverseParams;
 use needle_core::kinematics::DhChain;
@@ -60,7 +63,12 @@ fn corrupted_frames_are_rejected_and_counted_never_used() {
     let ctl =
         ControllerThread::start::<M>(chain, params, &instance, 1000.0, Duration::from_secs(60));
     let setup = setup_fingerprint(&chain, &params);
-    let mut host = SharedMemoryHost::<M>::connect(&config(&instance), setup).expect("host");
+    // A generous host deadline: the answers must come, however loaded the machine.
+    let cfg = BridgeConfig {
+        deadline: Duration::from_secs(2),
+        ..config(&instance)
+    };
+    let mut host = SharedMemoryHost::<M>::connect(&cfg, setup).expect("host");
     // The controller's subscriber must be connected before the first frame (no history).
     std::thread::sleep(Duration::from_millis(20));
     let mut cmd = boxed_command();
@@ -70,13 +78,13 @@ fn corrupted_frames_are_rejected_and_counted_never_used() {
     let seq = host.publish_with(|f| valid(f, 0)).expect("publish");
     received += 1;
     host.wait_command(seq, &mut cmd)
-        .or_else(|_| host.wait_command(seq, &mut cmd))
         .expect("answer to a valid frame");
     assert_eq!(cmd.frame_sequence, 0);
     assert_eq!(ctl.now().0.frames_solved, 1);
 
     // 2. Corrupted frames, each rejected for its own reason.
-    let corruptions: [(&str, fn(&mut ComplianceFrame<M>)); 5] = [
+    type Corruption = fn(&mut ComplianceFrame<M>);
+    let corruptions: [(&str, Corruption); 5] = [
         ("version", |f| f.version = 99),
         ("m above capacity", |f| f.m = M as u32 + 1),
         ("NaN in W", |f| f.w[1][1] = f64::NAN),
@@ -127,9 +135,8 @@ fn corrupted_frames_are_rejected_and_counted_never_used() {
         damping: 3.0,
         ..params
     };
-    let mut stranger =
-        SharedMemoryHost::<M>::connect(&config(&instance), setup_fingerprint(&chain, &other))
-            .expect("other host");
+    let mut stranger = SharedMemoryHost::<M>::connect(&cfg, setup_fingerprint(&chain, &other))
+        .expect("other host");
     std::thread::sleep(Duration::from_millis(20));
     stranger.publish_with(|f| valid(f, 0)).expect("publish");
     received += 1;
@@ -199,14 +206,22 @@ fn stale_resources_of_a_killed_process_are_removed_at_start() {
             .is_ok_and(|s| s.dynamic_config().number_of_publishers() == 1)
     });
     assert!(opened, "the child never published its service");
+    let pid = child.id() as i32;
+    assert_eq!(node_state(pid), Some("alive"));
     child.kill().expect("kill the child");
     let _ = child.wait();
-    // The next process to start removes the dead node's resources.
+    // The next process to start removes the dead node's resources. (Another test's controller
+    // may get there first when it holds: whoever does, the dead node must go.)
     let mut cleaned = 0;
-    assert!(wait_until(Duration::from_secs(5), || {
-        cleaned += cleanup_dead_nodes(&node);
-        cleaned >= 1
-    }));
+    assert!(
+        wait_until(Duration::from_secs(5), || {
+            cleaned += cleanup_dead_nodes(&node);
+            node_state(pid).is_none()
+        }),
+        "the killed process's node is still listed: {:?}",
+        node_state(pid)
+    );
+    println!("dead nodes removed here: {cleaned}");
     // And a new host can take the service over.
     let mut ctl = ControllerNode::<M>::connect(
         DhChain::rv1a(),
@@ -239,4 +254,26 @@ fn stale_resources_of_a_killed_process_are_removed_at_start() {
     }
     assert!(answered, "no answer after the crash: {:?}", ctl.stats());
     let _ = host.exchange(frame, &mut cmd);
+}
+
+/// The state of the iceoryx2 node of process `pid` in the node list: `alive`, `dead`, or none.
+fn node_state(pid: i32) -> Option<&'static str> {
+    let mut found = None;
+    let _ = Node::<ipc::Service>::list(Config::global_config(), |state| {
+        let (view_pid, what) = match &state {
+            NodeState::Alive(v) => (
+                v.details().as_ref().map(|d| d.process_id().value()),
+                "alive",
+            ),
+            NodeState::Dead(v) => (v.details().as_ref().map(|d| d.process_id().value()), "dead"),
+            _ => (None, ""),
+        };
+        if view_pid == Some(pid) {
+            found = Some(what);
+            CallbackProgression::Stop
+        } else {
+            CallbackProgression::Continue
+        }
+    });
+    found
 }
