@@ -267,6 +267,10 @@ pub fn build(scene: &Scene) -> Result<Simulation, SimError> {
             refactor_every: 1,
         },
     )?;
+    let mut needle = needle;
+    // The free-floating needle needs the material stiffness only (see
+    // `CorotationalBeams::set_geometric_stiffness`).
+    needle.set_geometric_stiffness(false);
     World::from_parts(
         scene.clone(),
         chain,

@@ -105,8 +105,13 @@ pub struct BeamElementState {
     pub energy: f64,
     /// Internal force `∂Π/∂d`, dof order `[x₁, θ₁, x₂, θ₂]` [N, N·mm].
     pub force: SVector<f64, 12>,
-    /// Symmetric Hessian `∂²Π/∂d²` (the assembled tangent) [N/mm, N, N·mm/rad].
+    /// Symmetric Hessian `∂²Π/∂d²` (the assembled tangent by default) [N/mm, N, N·mm/rad].
     pub hessian: SMatrix<f64, 12, 12>,
+    /// Material part of the Hessian, `Bᵀ K_l B` with `B = ∂u/∂d` the derivative of the local
+    /// deformations `u` and `K_l` the linear local beam stiffness: the corotational stiffness
+    /// `R K0 Rᵀ` of the paper's eq. 1, without the geometric (initial-stress) terms. Positive
+    /// semi-definite whatever the stress state.
+    pub material: SMatrix<f64, 12, 12>,
 }
 
 /// The needle's beam elements: connectivity, rest data and the section constants.
@@ -121,6 +126,7 @@ pub struct CorotationalBeams {
     ei: f64,
     section: BeamSection,
     states: Vec<BeamElementState>,
+    geometric_stiffness: bool,
 }
 
 /// `d` index (0..12) → (`z` index, sign) with `z = [Δx₂ − Δx₁, Δθ₁, Δθ₂]`.
@@ -200,6 +206,7 @@ impl CorotationalBeams {
             energy: 0.0,
             force: SVector::zeros(),
             hessian: SMatrix::zeros(),
+            material: SMatrix::zeros(),
         };
         Ok(Self {
             elements,
@@ -210,6 +217,7 @@ impl CorotationalBeams {
             ei: e * section.second_moment(),
             section,
             states: vec![zero; n],
+            geometric_stiffness: true,
         })
     }
 
@@ -299,20 +307,42 @@ impl CorotationalBeams {
         for (&t1, &t2) in theta[0].iter().zip(&theta[1]).skip(1) {
             energy = energy + (t1 * t1 + t1 * t2 + t2 * t2) * (2.0 * self.ei / l0);
         }
+        // Material stiffness Bᵀ K_l B over the local deformations u = (Δℓ, twist, θ̄₁y, θ̄₂y, θ̄₁z, θ̄₂z).
+        let u = [du, tw, theta[0][1], theta[1][1], theta[0][2], theta[1][2]];
+        let kb = self.ei / l0;
+        let mut kl = SMatrix::<f64, 6, 6>::zeros();
+        kl[(0, 0)] = self.ea / l0;
+        kl[(1, 1)] = self.gj / l0;
+        for o in [2, 4] {
+            kl[(o, o)] = 4.0 * kb;
+            kl[(o + 1, o + 1)] = 4.0 * kb;
+            kl[(o, o + 1)] = 2.0 * kb;
+            kl[(o + 1, o)] = 2.0 * kb;
+        }
+        let mut bz = SMatrix::<f64, 6, 9>::zeros();
+        for (k, uk) in u.iter().enumerate() {
+            for z in 0..9 {
+                bz[(k, z)] = uk.g[z];
+            }
+        }
+        let kz = bz.transpose() * kl * bz;
         let mut force = SVector::<f64, 12>::zeros();
         let mut hessian = SMatrix::<f64, 12, 12>::zeros();
+        let mut material = SMatrix::<f64, 12, 12>::zeros();
         for i in 0..12 {
             let (zi, si) = z_of_d(i);
             force[i] = si * energy.g[zi];
             for j in 0..12 {
                 let (zj, sj) = z_of_d(j);
                 hessian[(i, j)] = si * sj * energy.h[zi][zj];
+                material[(i, j)] = si * sj * kz[(zi, zj)];
             }
         }
         BeamElementState {
             energy: energy.v,
             force,
             hessian,
+            material,
         }
     }
 
@@ -373,12 +403,29 @@ impl CorotationalBeams {
             .flat_map(move |i| (i..12).map(move |j| (self.global_dof(e, i), self.global_dof(e, j))))
     }
 
-    /// Adds `scale ·` the cached symmetric Hessians into `values` through `slots`
+    /// Whether [`CorotationalBeams::assemble`] includes the geometric (initial-stress) terms
+    /// (default) or only the material stiffness `Bᵀ K_l B` (the paper's corotational `R K0 Rᵀ`).
+    ///
+    /// The simulation uses the material stiffness: the needle floats on its base constraint, so
+    /// its `K` is regularised only by a tiny `M/h²`, and under compression (the tip pushing on
+    /// the gel) the geometric terms make `K + M/h²` indefinite along the rigid modes — the
+    /// Cholesky factorisation fails although the constrained system is stable. The internal
+    /// forces stay exact, so equilibrium is unchanged; only the Newton step is less than quadratic.
+    pub fn set_geometric_stiffness(&mut self, on: bool) {
+        self.geometric_stiffness = on;
+    }
+
+    /// Adds `scale ·` the cached symmetric Hessians (or their material parts, see
+    /// [`CorotationalBeams::set_geometric_stiffness`]) into `values` through `slots`
     /// (`u32::MAX` = skip).
     pub fn assemble(&self, slots: &[u32], values: &mut [f64], scale: f64) {
         debug_assert_eq!(slots.len(), STIFFNESS_ENTRIES * self.elements.len());
         for e in 0..self.elements.len() {
-            let h = &self.states[e].hessian;
+            let h = if self.geometric_stiffness {
+                &self.states[e].hessian
+            } else {
+                &self.states[e].material
+            };
             let s = &slots[STIFFNESS_ENTRIES * e..STIFFNESS_ENTRIES * (e + 1)];
             let mut k = 0;
             for i in 0..12 {
