@@ -14,7 +14,7 @@ use criterion::{Criterion, criterion_group, criterion_main};
 use nalgebra::{Isometry3, Vector3};
 use needle_host::fem::Elasticity;
 use needle_host::fem::beam::BeamSection;
-use needle_host::free_motion::{GelModel, GelParams, NeedleModel, NeedleParams};
+use needle_host::free_motion::{FillOrdering, GelModel, GelParams, NeedleModel, NeedleParams};
 use needle_host::mesh::box_mesh;
 use std::hint::black_box;
 
@@ -32,6 +32,10 @@ impl Lcg {
 }
 
 fn gel(target: usize) -> GelModel {
+    gel_with(target, FillOrdering::NestedDissection)
+}
+
+fn gel_with(target: usize, ordering: FillOrdering) -> GelModel {
     let mesh = box_mesh(
         Vector3::new(260.0, -30.0, 0.0),
         Vector3::new(340.0, 30.0, 60.0),
@@ -42,7 +46,8 @@ fn gel(target: usize) -> GelModel {
         time_step: Some(0.01),
         ..GelParams::default()
     };
-    let mut model = GelModel::try_new(mesh, &bottom, &params).expect("valid benchmark gel");
+    let mut model = GelModel::try_new_with_ordering(mesh, &bottom, &params, ordering)
+        .expect("valid benchmark gel");
     let mut rng = Lcg(0x5eed_0001 + target as u64);
     // ±0.06 mm on ~5 mm cells: strains of ~1 %, the regime of the insertion benchmark.
     let dx: Vec<f64> = (0..model.dof_count()).map(|_| 0.06 * rng.next()).collect();
@@ -62,6 +67,12 @@ fn bench_gel(c: &mut Criterion) {
         group.bench_function(format!("assemble_gel_{target}_nodes"), |b| {
             b.iter(|| model.assemble())
         });
+        if std::env::var_os("NEEDLE_BENCH_AMD").is_some() && target <= 5000 {
+            let mut amd = gel_with(target, FillOrdering::Amd);
+            group.bench_function(format!("factor_gel_{target}_nodes_amd"), |b| {
+                b.iter(|| amd.factorize().expect("SPD"))
+            });
+        }
         group.bench_function(format!("factor_gel_{target}_nodes"), |b| {
             b.iter(|| model.factorize().expect("SPD"))
         });

@@ -33,7 +33,7 @@
 use crate::fem::beam::{self, BeamSection, CorotationalBeams};
 use crate::fem::tetra::{self, CorotationalTetra, Kinematics};
 use crate::fem::{Elasticity, FemError};
-use crate::linalg::{Cholesky, SymmetricMatrix, SymmetricPattern};
+use crate::linalg::{Cholesky, SymmetricMatrix, SymmetricPattern, nested_dissection_order};
 use crate::mesh::TetMesh;
 use nalgebra::{Isometry3, UnitQuaternion, Vector3};
 
@@ -65,6 +65,7 @@ impl ReducedSystem {
         entries: impl Fn() -> I,
         regularization_global: &[f64],
         refactor_every: usize,
+        dof_coords: Option<&[[f64; 3]]>,
     ) -> Result<(Self, Vec<u32>), FemError> {
         let ndof = fixed.len();
         let mut dof_map = vec![SKIP; ndof];
@@ -94,7 +95,11 @@ impl ReducedSystem {
             .map(|k| pattern.slot(k, k).unwrap_or(0))
             .collect();
         let regularization = free.iter().map(|&g| regularization_global[g]).collect();
-        let chol = Cholesky::try_new(&pattern, 1)?;
+        let order = dof_coords.map(|c| {
+            let reduced: Vec<[f64; 3]> = free.iter().map(|&g| c[g]).collect();
+            nested_dissection_order(&pattern, &reduced)
+        });
+        let chol = Cholesky::try_new_ordered(&pattern, order.as_deref(), 1)?;
         let n = free.len();
         Ok((
             Self {
@@ -211,6 +216,16 @@ pub struct GelParams {
     pub refactor_every: usize,
 }
 
+/// Fill-reducing elimination order of a sparse factorisation (chosen once, at construction).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum FillOrdering {
+    /// Approximate minimum degree (faer's default).
+    Amd,
+    /// Geometric nested dissection on the node positions ([`nested_dissection_order`]).
+    #[default]
+    NestedDissection,
+}
+
 impl Default for GelParams {
     fn default() -> Self {
         Self {
@@ -251,6 +266,19 @@ impl GelModel {
         fixed_nodes: &[usize],
         params: &GelParams,
     ) -> Result<Self, FemError> {
+        Self::try_new_with_ordering(mesh, fixed_nodes, params, FillOrdering::default())
+    }
+
+    /// As [`GelModel::try_new`] with an explicit fill-reducing ordering.
+    ///
+    /// # Errors
+    /// As [`GelModel::try_new`].
+    pub fn try_new_with_ordering(
+        mesh: TetMesh,
+        fixed_nodes: &[usize],
+        params: &GelParams,
+        ordering: FillOrdering,
+    ) -> Result<Self, FemError> {
         let tetra = CorotationalTetra::try_new(&mesh, &params.elasticity, params.kinematics)?;
         let n = mesh.nodes.len();
         let mut fixed = vec![false; 3 * n];
@@ -280,7 +308,10 @@ impl GelModel {
             }
         };
         let entries = || (0..tetra.len()).flat_map(|e| tetra.stiffness_entry_dofs(e));
-        let (sys, slots) = ReducedSystem::try_new(&fixed, entries, &reg, params.refactor_every)?;
+        let coords: Vec<[f64; 3]> = (0..3 * n).map(|g| mesh.nodes[g / 3].into()).collect();
+        let nd = (ordering == FillOrdering::NestedDissection).then_some(coords.as_slice());
+        let (sys, slots) =
+            ReducedSystem::try_new(&fixed, entries, &reg, params.refactor_every, nd)?;
         let mut sorted = fixed_nodes.to_vec();
         sorted.sort_unstable();
         sorted.dedup();
@@ -582,7 +613,8 @@ impl NeedleModel {
             }
         };
         let entries = || (0..beams.len()).flat_map(|e| beams.stiffness_entry_dofs(e));
-        let (sys, slots) = ReducedSystem::try_new(&fixed, entries, &reg, params.refactor_every)?;
+        let (sys, slots) =
+            ReducedSystem::try_new(&fixed, entries, &reg, params.refactor_every, None)?;
         Ok(Self {
             positions,
             orientations,

@@ -9,6 +9,7 @@
 
 use faer::dyn_stack::{MemBuffer, MemStack, StackReq};
 use faer::linalg::cholesky::llt::factor::LltRegularization;
+use faer::perm::PermRef;
 use faer::sparse::linalg::cholesky::{
     CholeskySymbolicParams, LltRef, SymbolicCholesky, SymmetricOrdering,
     factorize_symbolic_cholesky,
@@ -212,10 +213,44 @@ impl Cholesky {
     /// # Errors
     /// [`LinalgError::Symbolic`] if faer's analysis fails.
     pub fn try_new(pattern: &SymmetricPattern, max_rhs: usize) -> Result<Self, LinalgError> {
+        Self::try_new_ordered(pattern, None, max_rhs)
+    }
+
+    /// As [`Cholesky::try_new`] with a given elimination order (`order[k]` = the row eliminated
+    /// `k`-th, e.g. from [`nested_dissection_order`]); `None` uses AMD.
+    ///
+    /// # Errors
+    /// [`LinalgError::Symbolic`] if faer's analysis fails or `order` is not a permutation.
+    pub fn try_new_ordered(
+        pattern: &SymmetricPattern,
+        order: Option<&[usize]>,
+        max_rhs: usize,
+    ) -> Result<Self, LinalgError> {
+        let n = pattern.dim();
+        let inverse = match order {
+            Some(fwd) => {
+                let mut inv = vec![usize::MAX; n];
+                if fwd.len() != n {
+                    return Err(LinalgError::Symbolic);
+                }
+                for (k, &i) in fwd.iter().enumerate() {
+                    if i >= n || inv[i] != usize::MAX {
+                        return Err(LinalgError::Symbolic);
+                    }
+                    inv[i] = k;
+                }
+                inv
+            }
+            None => Vec::new(),
+        };
+        let ordering = match order {
+            Some(fwd) => SymmetricOrdering::Custom(PermRef::new_checked(fwd, &inverse, n)),
+            None => SymmetricOrdering::Amd,
+        };
         let symbolic = factorize_symbolic_cholesky(
             pattern.symbolic(),
             Side::Upper,
-            SymmetricOrdering::Amd,
+            ordering,
             CholeskySymbolicParams::default(),
         )
         .map_err(|_| LinalgError::Symbolic)?;
@@ -331,4 +366,74 @@ impl Cholesky {
         llt.solve_in_place_with_conj(Conj::No, mat, Par::Seq, MemStack::new(&mut self.solve_mem));
         Ok(())
     }
+}
+
+/// Geometric nested-dissection elimination order for the matrix graph of `pattern`, with a
+/// position per row (`coords[i]`, e.g. the node of a dof) [mm].
+///
+/// Recursively: split the rows at the median coordinate along the longest extent, take as
+/// separator the rows of one half adjacent to the other, order both halves first and the
+/// separator last; blocks below 64 rows keep their natural order. On 3-D meshes this gives
+/// less fill than minimum degree (the separators are planes).
+pub fn nested_dissection_order(pattern: &SymmetricPattern, coords: &[[f64; 3]]) -> Vec<usize> {
+    let n = pattern.dim();
+    let mut adj: Vec<Vec<usize>> = vec![Vec::new(); n];
+    for c in 0..n {
+        for &r in &pattern.row_idx[pattern.col_ptr[c]..pattern.col_ptr[c + 1]] {
+            if r != c {
+                adj[r].push(c);
+                adj[c].push(r);
+            }
+        }
+    }
+    let mut order = Vec::with_capacity(n);
+    let mut side = vec![0u8; n];
+    let mut stack: Vec<(Vec<usize>, bool)> = vec![((0..n).collect(), false)];
+    // Iterative post-order: (set, expanded?) — an expanded set pushes [separator, right, left].
+    while let Some((set, leaf)) = stack.pop() {
+        if leaf || set.len() < 64 {
+            order.extend_from_slice(&set);
+            continue;
+        }
+        let mut lo = [f64::INFINITY; 3];
+        let mut hi = [f64::NEG_INFINITY; 3];
+        for &i in &set {
+            for k in 0..3 {
+                lo[k] = lo[k].min(coords[i][k]);
+                hi[k] = hi[k].max(coords[i][k]);
+            }
+        }
+        let axis = (0..3)
+            .max_by(|&a, &b| (hi[a] - lo[a]).total_cmp(&(hi[b] - lo[b])))
+            .unwrap_or(0);
+        let mut vals: Vec<f64> = set.iter().map(|&i| coords[i][axis]).collect();
+        vals.sort_unstable_by(f64::total_cmp);
+        let median = vals[vals.len() / 2];
+        for &i in &set {
+            side[i] = if coords[i][axis] < median { 1 } else { 2 };
+        }
+        let mut left = Vec::new();
+        let mut right = Vec::new();
+        let mut sep = Vec::new();
+        for &i in &set {
+            if side[i] == 1 {
+                left.push(i);
+            } else if adj[i].iter().any(|&j| side[j] == 1) {
+                sep.push(i);
+            } else {
+                right.push(i);
+            }
+        }
+        for &i in &set {
+            side[i] = 0;
+        }
+        if left.is_empty() || right.is_empty() {
+            order.extend_from_slice(&set);
+            continue;
+        }
+        stack.push((sep, true));
+        stack.push((right, false));
+        stack.push((left, false));
+    }
+    order
 }

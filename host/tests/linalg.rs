@@ -112,3 +112,27 @@ fn pattern_is_upper_triangular_with_full_diagonal() {
     assert!(p.slot(0, 3).is_some() && p.slot(3, 0) == p.slot(0, 3));
     assert!(p.slot(0, 1).is_none() && p.slot(9, 9).is_none());
 }
+
+#[test]
+fn nested_dissection_is_a_permutation_and_solves_the_same() {
+    let k = 20;
+    let a = laplacian(k, 0.1);
+    let n = a.pattern().dim();
+    let coords: Vec<[f64; 3]> = (0..n)
+        .map(|i| [(i % k) as f64, (i / k) as f64, 0.0])
+        .collect();
+    let order = needle_host::linalg::nested_dissection_order(a.pattern(), &coords);
+    let mut seen = vec![false; n];
+    order.iter().for_each(|&i| seen[i] = true);
+    assert!(order.len() == n && seen.iter().all(|&s| s));
+    let mut nd = Cholesky::try_new_ordered(a.pattern(), Some(&order), 1).unwrap();
+    let mut amd = Cholesky::try_new(a.pattern(), 1).unwrap();
+    nd.factorize(&a).unwrap();
+    amd.factorize(&a).unwrap();
+    let b: Vec<f64> = (0..n).map(|i| (i as f64).sin()).collect();
+    let (mut x1, mut x2) = (b.clone(), b);
+    nd.solve_in_place(&mut x1).unwrap();
+    amd.solve_in_place(&mut x2).unwrap();
+    assert!(x1.iter().zip(&x2).all(|(u, v)| (u - v).abs() < 1e-12));
+    assert!(Cholesky::try_new_ordered(a.pattern(), Some(&order[1..]), 1).is_err());
+}
