@@ -156,3 +156,90 @@ pub fn copy_used<const M: usize>(src: &ComplianceFrame<M>, dst: &mut ComplianceF
     dst.q = src.q;
     dst.dt = src.dt;
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use needle_core::synthetic::random_frame;
+
+    fn boxed<const M: usize>() -> Box<ComplianceFrame<M>> {
+        let mut b = Box::<ComplianceFrame<M>>::new_uninit();
+        ComplianceFrame::init_in_place(&mut b);
+        // SAFETY: initialised just above.
+        unsafe { b.assume_init() }
+    }
+
+    #[test]
+    fn newtypes_keep_the_core_layout() {
+        assert_eq!(
+            core::mem::size_of::<FramePayload<192>>(),
+            core::mem::size_of::<ComplianceFrame<192>>()
+        );
+        assert_eq!(
+            core::mem::align_of::<CommandPayload<192>>(),
+            core::mem::align_of::<Command<192>>()
+        );
+        // SAFETY: only reads the type names.
+        unsafe {
+            assert_eq!(
+                <FramePayload<8> as ZeroCopySend>::type_name(),
+                "needle.ComplianceFrame.v1"
+            );
+            assert_eq!(
+                <CommandPayload<8> as ZeroCopySend>::type_name(),
+                "needle.Command.v1"
+            );
+        }
+    }
+
+    #[test]
+    fn copy_used_gives_a_frame_that_validates_and_observes_alike() {
+        let chain = DhChain::rv1a();
+        let q = [0.1, 0.3, 2.0, 0.0, 0.5, 0.0];
+        let mut src = boxed::<64>();
+        random_frame(&mut src, &chain, &q, 45, 3, true);
+        src.sequence = 17;
+        src.validate().expect("valid source");
+        let mut dst = boxed::<64>();
+        copy_used(&src, &mut dst);
+        dst.validate().expect("valid copy");
+        let m = src.rows();
+        assert_eq!(dst.sequence, 17);
+        for i in 0..m {
+            assert_eq!(dst.w[i][..m], src.w[i][..m]);
+        }
+        let lambda: Vec<f64> = (0..m).map(|i| i as f64 * 0.01).collect();
+        assert_eq!(dst.observe(0, &lambda), src.observe(0, &lambda));
+    }
+
+    #[test]
+    fn copy_used_clamps_a_corrupt_row_count() {
+        let mut src = boxed::<16>();
+        src.m = u32::MAX;
+        src.group_count = u32::MAX;
+        let mut dst = boxed::<16>();
+        copy_used(&src, &mut dst);
+        assert!(dst.validate().is_err());
+    }
+
+    #[test]
+    fn fingerprint_tells_setups_apart() {
+        let chain = DhChain::rv1a();
+        let p = InverseParams::default();
+        assert_eq!(setup_fingerprint(&chain, &p), setup_fingerprint(&chain, &p));
+        let p2 = InverseParams {
+            damping: p.damping + 1e-12,
+            ..p
+        };
+        assert_ne!(
+            setup_fingerprint(&chain, &p),
+            setup_fingerprint(&chain, &p2)
+        );
+        let mut c2 = chain;
+        c2.joints[2].a += 1.0;
+        assert_ne!(setup_fingerprint(&chain, &p), setup_fingerprint(&c2, &p));
+        assert_ne!(new_session_id(), new_session_id());
+        assert_eq!(CommandKind::from_raw(2), Some(CommandKind::Hold));
+        assert_eq!(CommandKind::from_raw(0), None);
+    }
+}

@@ -147,3 +147,39 @@ impl<const M: usize> Transport<M> for InProcess<M> {
         })
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use needle_core::synthetic::random_frame;
+
+    /// The in-process transport is exactly the core's step.
+    #[test]
+    fn in_process_equals_the_core_step() {
+        const M: usize = 48;
+        let chain = DhChain::rv1a();
+        let q = [0.1, 0.3, 2.0, 0.0, 0.5, 0.0];
+        let mut f = Box::<ComplianceFrame<M>>::new_uninit();
+        let f = ComplianceFrame::init_in_place(&mut f);
+        let mut c1 = Box::<Command<M>>::new_uninit();
+        let c1 = Command::init_in_place(&mut c1);
+        let mut c2 = Box::<Command<M>>::new_uninit();
+        let c2 = Command::init_in_place(&mut c2);
+        let mut t = InProcess::<M>::new(chain, InverseParams::default());
+        let mut core = Box::new(Controller::<M>::new(chain, InverseParams::default()));
+        for seed in 0..3 {
+            random_frame(f, &chain, &q, 30, seed, seed == 1);
+            f.sequence = seed;
+            t.exchange(f, c1).expect("in process");
+            core.step(f, c2).expect("core");
+            assert_eq!(c1.frame_sequence, seed);
+            assert_eq!(c1.q.map(f64::to_bits), c2.q.map(f64::to_bits));
+            assert_eq!(c1.lambda.map(f64::to_bits), c2.lambda.map(f64::to_bits));
+        }
+        f.version = 0;
+        assert!(matches!(
+            t.exchange(f, c1),
+            Err(TransportError::Core(StepError::InvalidFrame(_)))
+        ));
+    }
+}
