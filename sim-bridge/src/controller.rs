@@ -39,7 +39,7 @@ use std::time::Instant;
 pub struct ControllerOptions {
     /// Services, deadline (no fresh frame for this long ⇒ hold), polling.
     pub bridge: BridgeConfig,
-    /// Loop rate [Hz] (default 1000); 0: poll and answer every frame at once.
+    /// Loop rate in Hz (default 1000); 0: poll and answer every frame at once.
     pub rate_hz: f64,
     /// Stop after this long (none: until stopped or interrupted).
     pub run_for: Option<Duration>,
