@@ -373,7 +373,7 @@ impl Cholesky {
 ///
 /// Recursively: split the rows at the median coordinate along the longest extent, take as
 /// separator the rows of one half adjacent to the other, order both halves first and the
-/// separator last; blocks below 64 rows keep their natural order. On 3-D meshes this gives
+/// separator last, down to blocks of fewer than 6 rows (two nodes), which keep their natural order. On 3-D meshes this gives
 /// less fill than minimum degree (the separators are planes).
 pub fn nested_dissection_order(pattern: &SymmetricPattern, coords: &[[f64; 3]]) -> Vec<usize> {
     let n = pattern.dim();
@@ -391,7 +391,7 @@ pub fn nested_dissection_order(pattern: &SymmetricPattern, coords: &[[f64; 3]]) 
     let mut stack: Vec<(Vec<usize>, bool)> = vec![((0..n).collect(), false)];
     // Iterative post-order: (set, expanded?) — an expanded set pushes [separator, right, left].
     while let Some((set, leaf)) = stack.pop() {
-        if leaf || set.len() < 64 {
+        if leaf || set.len() < 6 {
             order.extend_from_slice(&set);
             continue;
         }
