@@ -27,6 +27,8 @@
 //!   step), or when [`GelModel::request_refactor`] is called.
 //! - All buffers are allocated at construction.
 
+// Units are written in brackets ([mm], [N]) as in the workspace style: not intra-doc links.
+#![allow(rustdoc::broken_intra_doc_links)]
 // Negated comparisons are deliberate: NaN must fail every validity check.
 #![allow(clippy::neg_cmp_op_on_partial_ord, clippy::nonminimal_bool)]
 

@@ -7,6 +7,9 @@
 //! solves reuse preallocated scratch ([`Cholesky::solve_in_place`]). Single-threaded
 //! (`Par::Seq`): at the sizes of this project one thread is faster than two.
 
+// Units are written in brackets ([mm], [N]) as in the workspace style: not intra-doc links.
+#![allow(rustdoc::broken_intra_doc_links)]
+
 use faer::dyn_stack::{MemBuffer, MemStack, StackReq};
 use faer::linalg::cholesky::llt::factor::LltRegularization;
 use faer::perm::PermRef;

@@ -1,6 +1,8 @@
 //! Finite elements of the free-motion stage (paper §III-B, eq. 1): corotational linear
 //! tetrahedra for the gel ([`tetra`]) and corotational 3-D beams for the needle ([`beam`]).
 
+// Units are written in brackets ([mm], [N]) as in the workspace style: not intra-doc links.
+#![allow(rustdoc::broken_intra_doc_links)]
 // Negated comparisons are deliberate: NaN must fail every validity check.
 #![allow(clippy::neg_cmp_op_on_partial_ord, clippy::nonminimal_bool)]
 

@@ -4,6 +4,9 @@
 //! A mesh is plain data: node positions (world frame, mm) and 4-node elements, 0-based,
 //! positively oriented (`det[x1 − x0, x2 − x0, x3 − x0] > 0`).
 
+// Units are written in brackets ([mm], [N]) as in the workspace style: not intra-doc links.
+#![allow(rustdoc::broken_intra_doc_links)]
+
 mod generate;
 mod gmsh;
 mod validate;
