@@ -335,3 +335,38 @@ fn factor_reuse_counts_age_and_solve_uses_the_current_factor() {
     bad[0] = f64::NAN;
     assert!(model.free_motion(&bad).is_err());
 }
+
+/// Heavy (run in release by CI): the 5000-node benchmark gel, bottom clamped, pushed down on its
+/// top face by 5 % of its height through a prescribed displacement; the static corotational
+/// Newton steps converge and every element stays positively oriented.
+#[test]
+#[ignore]
+fn benchmark_gel_5000_nodes_large_compression_converges() {
+    let mesh = box_mesh(
+        Vector3::new(260.0, -30.0, 0.0),
+        Vector3::new(340.0, 30.0, 60.0),
+        5000,
+    );
+    let bottom = mesh.nodes_on_plane(2, 0.0, 1e-9);
+    let top = mesh.nodes_on_plane(2, 60.0, 1e-9);
+    let fixed: Vec<usize> = bottom.iter().chain(&top).copied().collect();
+    let mut model = GelModel::try_new(mesh, &fixed, &GelParams::default()).unwrap();
+    for &n in &top {
+        model.positions_mut()[n].z -= 3.0;
+    }
+    let f = vec![0.0; model.dof_count()];
+    let mut last = f64::INFINITY;
+    for _ in 0..15 {
+        let dx = model.free_motion(&f).unwrap().to_vec();
+        model.apply_displacement(&dx).unwrap();
+        last = dx.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    }
+    assert!(last < 1e-8, "last Newton step {last:e} mm");
+    let x = model.positions().to_vec();
+    for (e, t) in model.mesh().tets.iter().enumerate() {
+        let v = (x[t[1]] - x[t[0]])
+            .cross(&(x[t[2]] - x[t[0]]))
+            .dot(&(x[t[3]] - x[t[0]]));
+        assert!(v > 0.0, "element {e} inverted");
+    }
+}
