@@ -334,7 +334,7 @@ impl CorotationalBeams {
             force[i] = si * energy.g[zi];
             for j in 0..12 {
                 let (zj, sj) = z_of_d(j);
-                hessian[(i, j)] = si * sj * energy.h[zi][zj];
+                hessian[(i, j)] = si * sj * energy.hess(zi, zj);
                 material[(i, j)] = si * sj * kz[(zi, zj)];
             }
         }

@@ -12,7 +12,8 @@ use std::ops::{Add, Mul, Neg, Sub};
 /// the two nodal rotation increments (3 + 3).
 pub(crate) const N: usize = 9;
 
-/// A value with exact gradient and Hessian with respect to `N` variables.
+/// A value with exact gradient and Hessian with respect to `N` variables. Only the upper
+/// triangle `h[i][j]`, `j ≥ i`, of the symmetric Hessian is maintained; read it with [`Hd::hess`].
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Hd {
     pub v: f64,
@@ -37,6 +38,11 @@ impl Hd {
         s
     }
 
+    /// Hessian entry `(i, j)` (either order).
+    pub fn hess(&self, i: usize, j: usize) -> f64 {
+        if i <= j { self.h[i][j] } else { self.h[j][i] }
+    }
+
     /// `f(self)` given `f`, `f'`, `f''` at `self.v`.
     fn chain(self, f0: f64, f1: f64, f2: f64) -> Self {
         let mut r = Self::cst(f0);
@@ -44,7 +50,7 @@ impl Hd {
             r.g[i] = f1 * self.g[i];
         }
         for i in 0..N {
-            for j in 0..N {
+            for j in i..N {
                 r.h[i][j] = f1 * self.h[i][j] + f2 * self.g[i] * self.g[j];
             }
         }
@@ -65,7 +71,11 @@ impl Hd {
         let mut r = self;
         r.v *= s;
         r.g.iter_mut().for_each(|x| *x *= s);
-        r.h.iter_mut().flatten().for_each(|x| *x *= s);
+        for i in 0..N {
+            for j in i..N {
+                r.h[i][j] *= s;
+            }
+        }
         r
     }
 }
@@ -76,7 +86,7 @@ impl Add for Hd {
         self.v += o.v;
         for i in 0..N {
             self.g[i] += o.g[i];
-            for j in 0..N {
+            for j in i..N {
                 self.h[i][j] += o.h[i][j];
             }
         }
@@ -188,6 +198,6 @@ mod tests {
             / (4.0 * e * e);
         assert!((f.v - fe(x0, y0)).abs() < 1e-14);
         assert!((f.g[0] - gx).abs() < 1e-7 && (f.g[1] - gy).abs() < 1e-7);
-        assert!((f.h[0][1] - hxy).abs() < 1e-5 && (f.h[1][0] - hxy).abs() < 1e-5);
+        assert!((f.hess(0, 1) - hxy).abs() < 1e-5 && (f.hess(1, 0) - hxy).abs() < 1e-5);
     }
 }
