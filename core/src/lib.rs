@@ -19,7 +19,7 @@ pub mod synthetic;
 
 pub use constraint::{ActiveSet, BlockGs, GsParams, SolveReport};
 pub use ik::{IkError, IkParams, IkReport, solve_ik};
-pub use inverse::{Controller, InverseParams, Objective, StepError};
+pub use inverse::{Controller, InverseParams, JacobianMode, Objective, StepError};
 pub use kinematics::{DhChain, DhJoint, JointLimit, Pose};
 pub use payload::{
     Command, ComplianceFrame, GroupKind, NOBS, ObsIndex, RowGroup, SolverReport, StatusFlags,

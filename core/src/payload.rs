@@ -564,6 +564,9 @@ impl StatusFlags {
     pub const WITHIN_TOLERANCE: u32 = 1 << 4;
     /// The damping of the pseudo-inverse was raised near a singularity.
     pub const NEAR_SINGULAR: u32 = 1 << 5;
+    /// The step was scaled down to the trust region on the needle-base motion
+    /// (`InverseParams::max_base_step`).
+    pub const STEP_LIMITED: u32 = 1 << 6;
 }
 
 /// Report of one inverse step, carried in [`Command::report`].

@@ -237,6 +237,7 @@ pub fn build(scene: &Scene) -> Result<Simulation, SimError> {
             time_step: Some(h),
             kinematics: Kinematics::Corotational,
             refactor_every: scene.solver.refactor_every as usize,
+            ..GelParams::default()
         },
     )?;
     let q0 = start_joints(scene)?;

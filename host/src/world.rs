@@ -451,8 +451,13 @@ impl<G: GelBody, N: NeedleBody> World<G, N> {
 
     /// The target point for arc length `c`: in the air on the approach segment (fixed in the
     /// world), inside the gel embedded at its rest barycentric coordinates (moves with the gel).
+    ///
+    /// Until the tip has punctured the surface the target stays the rest-configuration path
+    /// point, fixed in the world: the tip pressing on the surface indents the gel, and a target
+    /// embedded below it would recede with that indentation — the controller would chase it
+    /// sideways instead of pushing through. Once punctured, the target is embedded.
     pub fn target_embedding(&self, c: f64) -> Option<Embedded> {
-        if c < self.path.approach {
+        if c < self.path.approach || !self.punctured {
             return None;
         }
         let (p, _) = self.path.at(c);

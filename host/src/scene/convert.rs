@@ -3,7 +3,7 @@
 use super::{PoseSpec, Scene};
 use nalgebra::{Rotation3, Vector3};
 use needle_core::constraint::GsParams;
-use needle_core::inverse::InverseParams;
+use needle_core::inverse::{InverseParams, JacobianMode};
 use needle_core::kinematics::{DhChain, DhJoint, JointLimit, Pose};
 
 impl PoseSpec {
@@ -62,6 +62,11 @@ impl Scene {
             angle_weight: v.angle_weight,
             damping: v.damping,
             tolerance: v.tolerance,
+            max_base_step: v.max_base_step,
+            jacobian: match v.jacobian {
+                super::JacobianSpec::Solve => JacobianMode::Solve,
+                super::JacobianSpec::Linearized => JacobianMode::Linearized,
+            },
             gs: GsParams {
                 tolerance: self.solver.gs_tolerance,
                 max_iterations: self.solver.gs_max_iterations,

@@ -294,6 +294,24 @@ pub struct InverseSpec {
     /// Objective tolerance: no Newton step while |T|² ≤ this [mm²].
     #[serde(default = "default_inverse_tol")]
     pub tolerance: f64,
+    /// How the Jacobian columns are computed: `"solve"` (a Gauss-Seidel solve at each perturbed
+    /// joint vector, the paper's eq. 14) or `"linearized"` (the same solve with the active set
+    /// of the unperturbed solve frozen: no contact flips inside a finite difference).
+    #[serde(default = "default_jacobian")]
+    pub jacobian: JacobianSpec,
+    /// Trust region of the Newton step: the needle base moves at most this far per step [mm].
+    #[serde(default = "default_max_base_step")]
+    pub max_base_step: f64,
+}
+
+/// How the inverse controller's Jacobian columns are computed.
+#[derive(Clone, Copy, Debug, Deserialize, Serialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum JacobianSpec {
+    /// A constraint solve at each perturbed joint vector (the paper's eq. 14).
+    Solve,
+    /// The frozen-active-set solve (exact one-sided derivative at the same δq).
+    Linearized,
 }
 
 impl Default for InverseSpec {
@@ -304,6 +322,8 @@ impl Default for InverseSpec {
             damping: default_damping(),
             angle_weight: default_angle_weight(),
             tolerance: default_inverse_tol(),
+            jacobian: default_jacobian(),
+            max_base_step: default_max_base_step(),
         }
     }
 }
@@ -485,6 +505,12 @@ fn default_angle_weight() -> f64 {
 fn default_inverse_tol() -> f64 {
     1.0e-6
 }
+fn default_max_base_step() -> f64 {
+    3.0
+}
+fn default_jacobian() -> JacobianSpec {
+    JacobianSpec::Linearized
+}
 fn default_gs_tol() -> f64 {
     1.0e-10
 }
@@ -592,6 +618,53 @@ impl Scene {
             _ => return None,
         };
         Self::from_toml_str(text, &format!("<builtin:{name}>")).ok()
+    }
+
+    /// The scene with `overrides` applied: each `(path, value)` sets the dotted field `path`
+    /// (e.g. `inverse.delta_q`) to `value`, a TOML value (`0.001`, `"solve"`, `[1, 2, 3]`).
+    ///
+    /// # Errors
+    /// [`SceneError`] naming the field when the path does not exist, the value does not parse or
+    /// the result fails validation.
+    pub fn with_overrides(&self, overrides: &[(String, String)]) -> Result<Self, SceneError> {
+        let file = format!("<{} + overrides>", self.name);
+        let err = |field: &str, reason: String| SceneError {
+            file: file.clone(),
+            field: field.to_owned(),
+            reason,
+        };
+        let mut root = toml::Value::try_from(self).map_err(|e| err("", e.to_string()))?;
+        for (path, value) in overrides {
+            let parsed: toml::Value = toml::from_str::<toml::Table>(&format!("v = {value}"))
+                .map_err(|e| {
+                    err(
+                        path,
+                        format!(
+                            "`{value}` is not a TOML value: {}",
+                            one_line(&e.to_string())
+                        ),
+                    )
+                })?
+                .remove("v")
+                .ok_or_else(|| err(path, format!("`{value}` is not a TOML value")))?;
+            let mut node = &mut root;
+            let keys: Vec<&str> = path.split('.').collect();
+            for (i, k) in keys.iter().enumerate() {
+                let table = node.as_table_mut().ok_or_else(|| {
+                    err(path, format!("`{}` is not a table", keys[..i].join(".")))
+                })?;
+                if i + 1 == keys.len() {
+                    table.insert((*k).to_owned(), parsed.clone());
+                    break;
+                }
+                node = table
+                    .entry((*k).to_owned())
+                    .or_insert_with(|| toml::Value::Table(toml::Table::new()));
+            }
+        }
+        let text = toml::to_string(&root).map_err(|e| err("", e.to_string()))?;
+        // A loaded scene's mesh path is already resolved, so the text round trip keeps it.
+        Self::from_toml_str(&text, &file)
     }
 
     /// Names of the embedded scenes.

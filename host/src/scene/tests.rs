@@ -187,3 +187,29 @@ fn formula_functions_documented_in_scene_format_work() {
     assert!((p.points[0].x - 8.0).abs() < 1e-12, "{}", p.points[0].x);
     assert!((p.points[2].y - std::f64::consts::PI).abs() < 1e-12);
 }
+
+#[test]
+fn overrides_set_dotted_fields_and_are_validated() {
+    let s = Scene::builtin("simple").unwrap();
+    let o = s
+        .with_overrides(&[
+            ("inverse.delta_q".into(), "0.001".into()),
+            ("inverse.jacobian".into(), "\"solve\"".into()),
+        ])
+        .expect("overrides");
+    assert_eq!(o.inverse.delta_q, 0.001);
+    assert_eq!(o.inverse.jacobian, JacobianSpec::Solve);
+    assert_eq!(o.gel, s.gel);
+    let e = s
+        .with_overrides(&[("gel.young_modulus".into(), "-1".into())])
+        .unwrap_err();
+    assert_eq!(e.field, "gel.young_modulus");
+    let e = s
+        .with_overrides(&[("gel.youngs_modulus".into(), "1".into())])
+        .unwrap_err();
+    assert_eq!(e.field, "gel.youngs_modulus");
+    let e = s
+        .with_overrides(&[("inverse.delta_q".into(), "0.0.1".into())])
+        .unwrap_err();
+    assert!(e.reason.contains("not a TOML value"), "{e}");
+}

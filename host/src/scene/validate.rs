@@ -221,6 +221,7 @@ impl Scene {
         non_negative("inverse.damping", v.damping, "[mm]")?;
         non_negative("inverse.angle_weight", v.angle_weight, "[mm/rad]")?;
         non_negative("inverse.tolerance", v.tolerance, "[mm²]")?;
+        positive("inverse.max_base_step", v.max_base_step, "[mm]")?;
 
         // Solver.
         let s = &self.solver;
