@@ -49,6 +49,10 @@ enum Command {
         /// Gel mesh size (overrides the scene's box node count).
         #[arg(long)]
         nodes: Option<usize>,
+        /// Override a scene field, e.g. `--set inverse.delta_q=0.001` or
+        /// `--set 'inverse.jacobian="solve"'` (repeatable; the value is TOML).
+        #[arg(long = "set", value_name = "FIELD=VALUE")]
+        set: Vec<String>,
         /// No progress bar.
         #[arg(long)]
         quiet: bool,
@@ -84,6 +88,10 @@ enum Command {
         /// Gel mesh size (overrides the scene's box node count).
         #[arg(long)]
         nodes: Option<usize>,
+        /// Override a scene field, e.g. `--set inverse.delta_q=0.001` or
+        /// `--set 'inverse.jacobian="solve"'` (repeatable; the value is TOML).
+        #[arg(long = "set", value_name = "FIELD=VALUE")]
+        set: Vec<String>,
         /// No progress bar.
         #[arg(long)]
         quiet: bool,
@@ -115,15 +123,25 @@ fn load_scene(arg: &str) -> Result<Scene, String> {
     })
 }
 
-/// Overrides the box mesh size of a scene.
-fn set_nodes(scene: &mut Scene, nodes: Option<usize>) -> Result<(), String> {
+/// Applies `--nodes` and `--set FIELD=VALUE` overrides to a scene (validated again).
+fn customize(scene: Scene, nodes: Option<usize>, set: &[String]) -> Result<Scene, String> {
+    let mut overrides = Vec::new();
     if let Some(n) = nodes {
-        match scene.gel.box_mesh.as_mut() {
-            Some(b) => b.nodes = n,
-            None => return Err("--nodes needs a scene with a generated `gel.box` mesh".into()),
+        if scene.gel.box_mesh.is_none() {
+            return Err("--nodes needs a scene with a generated `gel.box` mesh".into());
         }
+        overrides.push(("gel.box.nodes".to_owned(), n.to_string()));
     }
-    Ok(())
+    for kv in set {
+        let (k, v) = kv.split_once('=').ok_or_else(|| {
+            format!("--set `{kv}`: expected FIELD=VALUE, e.g. inverse.delta_q=0.001")
+        })?;
+        overrides.push((k.trim().to_owned(), v.trim().to_owned()));
+    }
+    if overrides.is_empty() {
+        return Ok(scene);
+    }
+    scene.with_overrides(&overrides).map_err(|e| e.to_string())
 }
 
 fn progress(total: u64, quiet: bool) -> ProgressBar {
@@ -223,13 +241,11 @@ fn main() -> ExitCode {
             steps,
             vtk_every,
             nodes,
+            set,
             quiet,
             json,
         } => {
-            let scene = match load_scene(&scene).and_then(|mut s| {
-                set_nodes(&mut s, nodes)?;
-                Ok(s)
-            }) {
+            let scene = match load_scene(&scene).and_then(|s| customize(s, nodes, &set)) {
                 Ok(s) => s,
                 Err(e) => {
                     eprintln!("error: {e}");
@@ -272,13 +288,11 @@ fn main() -> ExitCode {
             out,
             steps,
             nodes,
+            set,
             quiet,
             json,
         } => {
-            let scene = match load_scene(&scene).and_then(|mut s| {
-                set_nodes(&mut s, nodes)?;
-                Ok(s)
-            }) {
+            let scene = match load_scene(&scene).and_then(|s| customize(s, nodes, &set)) {
                 Ok(s) => s,
                 Err(e) => {
                     eprintln!("error: {e}");
