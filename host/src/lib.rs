@@ -11,4 +11,5 @@ pub mod proximity;
 pub mod scene;
 pub mod bodies;
 pub mod world;
+pub mod report;
 pub mod run;

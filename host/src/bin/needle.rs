@@ -4,11 +4,13 @@
 //! needle run                      # the embedded complex benchmark scene, inverse controller
 //! needle run scenes/simple.toml --controller naive --out out/simple-naive
 //! needle serve complex            # host process; the core runs in `needle-controller complex`
+//! needle report --out report      # the benchmark report: every scene, controller and sweep
 //! ```
 
 use clap::{Parser, Subcommand, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
 use needle_bridge::{BridgeConfig, SharedMemoryHost, setup_fingerprint};
+use needle_host::report::{ReportOptions, report};
 use needle_host::run::{ControllerKind, RunOptions, RunSummary, planned_steps, run, run_with};
 use needle_host::scene::Scene;
 use needle_host::world::ROWS;
@@ -98,6 +100,22 @@ enum Command {
         /// Print the summary as JSON.
         #[arg(long)]
         json: bool,
+    },
+    /// The benchmark report: both scenes under both controllers plus the mesh, δq, blend
+    /// distance and constraint-spacing sweeps; writes summary.md, CSVs and SVG/PNG charts.
+    Report {
+        /// Output folder (created if missing).
+        #[arg(long, default_value = "report")]
+        out: PathBuf,
+        /// The reduced set: 600-node meshes, one point per sweep, at most 250 steps per run.
+        #[arg(long)]
+        quick: bool,
+        /// Cap on the steps of every run (default: the whole path; 250 with --quick).
+        #[arg(long)]
+        steps: Option<usize>,
+        /// No progress on stderr.
+        #[arg(long)]
+        quiet: bool,
     },
 }
 
@@ -234,6 +252,39 @@ fn print_summary(s: &RunSummary, json: bool) -> ExitCode {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     match cli.command {
+        Command::Report {
+            out,
+            quick,
+            steps,
+            quiet,
+        } => {
+            let opts = ReportOptions {
+                out_dir: out,
+                quick,
+                steps,
+                progress: !quiet,
+            };
+            match report(&opts) {
+                Ok(r) => {
+                    let broke = r.runs.iter().filter(|x| !x.completed()).count();
+                    println!(
+                        "report: {} runs ({} did not complete) in {:.0} s, written to {}",
+                        r.runs.len(),
+                        broke,
+                        r.wall_s,
+                        r.out_dir.display()
+                    );
+                    for f in &r.files {
+                        println!("  {}", f.display());
+                    }
+                    ExitCode::SUCCESS
+                }
+                Err(e) => {
+                    eprintln!("error: {e}");
+                    ExitCode::FAILURE
+                }
+            }
+        }
         Command::Run {
             scene,
             controller,

@@ -1,0 +1,106 @@
+//! The whole step of the complex benchmark insertion (FM + CD + CC + the core's 7–8 constraint
+//! solves + correction) at the paper's four mesh sizes, measured mid-insertion:
+//!
+//! - `full_step_<n>_nodes`: one [`World::step`](needle_host::world::World::step) of the complex
+//!   scene with a gel of about `n` nodes, the tip about 20 mm deep in the gel (300 steps of
+//!   0.1 mm are run once in the setup, not timed).
+//!
+//! A world cannot be cloned, so the timed loop runs successive steps on the live world: every
+//! iteration advances the insertion by another 0.1 mm. The number of timed steps is bounded (flat
+//! sampling, 10 samples, warm-up and measurement times set from the step time of the last setup
+//! steps: about 60–100 steps, 6–10 mm more) so that the
+//! timed steps stay on the path and around the same depth. After each size the bench prints the
+//! gel's node count and the median stage split of the timed steps.
+//!
+//! The paper's figure to beat: 24.43 ms per step at 1800 nodes (8.85 / 13.24 / 12.92 ms at 600 /
+//! 1100 / 1500 nodes).
+//!
+//! Run: `cargo bench -p needle-host --bench full_step`.
+
+use criterion::{Criterion, SamplingMode, criterion_group, criterion_main};
+use needle_host::bodies::build;
+use needle_host::run::planned_steps;
+use needle_host::scene::Scene;
+use needle_host::world::StepReport;
+use std::hint::black_box;
+use std::time::{Duration, Instant};
+
+/// Steps run before timing: 300 × 0.1 mm, 10 mm of approach in the air, then ≈ 20 mm in the gel.
+const SETUP_STEPS: usize = 300;
+/// The step time that sets the budget is the mean of these last setup steps.
+const LAST_SETUP_STEPS: usize = 30;
+/// Warm-up budget in steps (criterion may run up to about twice as many).
+const WARM_UP_STEPS: u32 = 10;
+/// Measurement budget in steps (10 samples of equal size).
+const TIMED_STEPS: u32 = 60;
+
+fn median(mut v: Vec<f64>) -> f64 {
+    if v.is_empty() {
+        return f64::NAN;
+    }
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+fn bench_full_step(c: &mut Criterion) {
+    let mut group = c.benchmark_group("full_step");
+    group.sample_size(10).sampling_mode(SamplingMode::Flat);
+    for nodes in [600, 1100, 1500, 1800] {
+        let scene = Scene::builtin("complex")
+            .expect("embedded scene")
+            .with_overrides(&[("gel.box.nodes".into(), nodes.to_string())])
+            .expect("valid override");
+        let planned = planned_steps(&scene);
+        let mut world = build(&scene).expect("the benchmark scene builds");
+        let mut last = Duration::ZERO;
+        for k in 0..SETUP_STEPS {
+            let t = Instant::now();
+            world.step().expect("setup step");
+            if k >= SETUP_STEPS - LAST_SETUP_STEPS {
+                last += t.elapsed();
+            }
+        }
+        // Budget ≈ WARM_UP_STEPS + TIMED_STEPS steps at the current step time, so that the
+        // timed steps stay on the path and around the same depth at every mesh size.
+        let per_step = last / LAST_SETUP_STEPS as u32;
+        group
+            .warm_up_time(per_step * WARM_UP_STEPS)
+            .measurement_time(per_step * TIMED_STEPS);
+        let depth0 = world.depth();
+        let mut timed: Vec<StepReport> = Vec::new();
+        group.bench_function(format!("full_step_{nodes}_nodes"), |b| {
+            b.iter_custom(|iters| {
+                let mut elapsed = Duration::ZERO;
+                for _ in 0..iters {
+                    assert!(
+                        world.steps < planned,
+                        "the timed steps ran past the end of the path"
+                    );
+                    let t = Instant::now();
+                    let r = world.step().expect("timed step");
+                    elapsed += t.elapsed();
+                    timed.push(black_box(r));
+                }
+                elapsed
+            })
+        });
+        let med = |f: fn(&StepReport) -> f64| median(timed.iter().map(f).collect());
+        eprintln!(
+            "full_step_{nodes}_nodes: {} gel nodes, depth {depth0:.1} → {:.1} mm over {} timed steps; \
+             stage medians [ms]: total {:.2} · FM {:.2} · CD {:.2} · CC {:.2} · SC {:.2} · corr {:.2}",
+            world.gel.model.positions().len(),
+            world.depth(),
+            timed.len(),
+            med(|r| r.times.total()),
+            med(|r| r.times.fm),
+            med(|r| r.times.cd),
+            med(|r| r.times.cc),
+            med(|r| r.times.sc),
+            med(|r| r.times.corr),
+        );
+    }
+    group.finish();
+}
+
+criterion_group!(benches, bench_full_step);
+criterion_main!(benches);
