@@ -1093,9 +1093,13 @@ impl<G: GelBody, N: NeedleBody> World<G, N> {
         let tdir = (nodes[n - 1] - nodes[n - 2]).normalize();
         let gel_nodes = self.gel.nodes().to_vec();
         let tets = self.gel.tets().to_vec();
+        // Released once the tip is withdrawn past the point by more than a margin (half the
+        // spacing, at most 1 mm): without it, the point created at the tip itself would flicker
+        // in and out with the tip's sub-millimetre back-and-forth.
+        let margin = (0.5 * self.scene.interaction.constraint_spacing).min(1.0);
         self.sliding.retain(|s| {
             let g = s.at.position(&gel_nodes, &tets);
-            (g - tip).dot(&tdir) <= 0.0
+            (g - tip).dot(&tdir) <= margin
         });
         if self.sliding.is_empty() {
             // Fully withdrawn: the surface is whole again for contact purposes.

@@ -9,7 +9,8 @@ use needle_host::constraints::GroupRole;
 use needle_host::scene::Scene;
 use needle_host::world::StepReport;
 
-/// A straight vertical insertion on a coarse gel: path from (300, 0, 60) down to z = 20.
+/// A straight vertical insertion on a coarse gel: path from (300, 0, 60) down to z = 20, with a
+/// constant axial resistance of 0.05 N per sliding point so that the shaft drags the gel.
 fn vertical_scene(nodes: usize) -> Scene {
     let text = format!(
         r#"
@@ -18,13 +19,15 @@ name = "vertical"
 min = [260.0, -30.0, 0.0]
 max = [340.0, 30.0, 60.0]
 nodes = {nodes}
+[interaction]
+shaft_resistance = 0.05
 [path]
 points = [[300.0, 0.0, 60.0], [300.0, 0.0, 20.0]]
 approach = 5.0
 [[obstacles]]
 name = "probe"
-center = [310.0, 0.0, 30.0]
-radius = 2.0
+center = [304.0, 0.0, 50.0]
+radius = 1.0
 "#
     );
     Scene::from_toml_str(&text, "vertical.toml").expect("scene")
@@ -128,12 +131,13 @@ fn vertical_insertion_punctures_once_slides_and_stays_straight_and_symmetric() {
         (base - b.translation).norm()
     );
 
-    // The needle stays straight: every node within 0.05 mm of the vertical through the base.
+    // The needle stays straight: every node within 0.05 mm (L/2400) of the vertical through the base.
     for p in sim.needle.model.positions() {
         let lateral = ((p.x - base.x).powi(2) + (p.y - base.y).powi(2)).sqrt();
         assert!(
             lateral < 0.05,
-            "node at {p} is {lateral} mm off the vertical"
+            "node at {:?} is {lateral} mm off the vertical",
+            p.as_slice()
         );
     }
 
@@ -147,19 +151,27 @@ fn vertical_insertion_punctures_once_slides_and_stays_straight_and_symmetric() {
         .map(|(x, x0)| (x - x0).norm())
         .fold(0.0, f64::max);
     assert!(umax > 0.05, "the gel barely moved ({umax} mm)");
+    // The box mesh is mirror-symmetric about y = 0 (even division counts, mirrored Kuhn split).
     let mut worst: f64 = 0.0;
+    let mut pairs = 0;
     for (i, x0) in rest.iter().enumerate() {
         let mirror = Vector3::new(x0.x, -x0.y, x0.z);
         let Some(j) = rest.iter().position(|y| (y - mirror).norm() < 1e-9) else {
             continue;
         };
+        pairs += 1;
         let ui = gel.positions()[i] - x0;
         let uj = gel.positions()[j] - rest[j];
         let mirrored = Vector3::new(uj.x, -uj.y, uj.z);
         worst = worst.max((ui - mirrored).norm());
     }
     assert!(
-        worst < 0.15 * umax,
+        pairs == rest.len(),
+        "the mesh is not mirror-symmetric: {pairs} of {} nodes paired",
+        rest.len()
+    );
+    assert!(
+        worst < 0.05 * umax,
         "asymmetry {worst} mm for a largest displacement of {umax} mm"
     );
 }
@@ -189,12 +201,24 @@ fn lateral_push_bends_needle_and_gel_with_equal_and_opposite_forces() {
         let c = sim.c;
         reports.push(sim.step_with(c, Some(q)).expect("step"));
     }
-    // The needle bends: its tip moved less than its base (held by the gel).
+    // The needle bends about the entry point: the base moved 3 mm, the tip (held in the gel)
+    // much less, and the shaft is no longer straight.
     let base_dx = 3.0;
     let tip_dx = sim.tip().x - tip_before.x;
     assert!(
-        tip_dx > 0.0 && tip_dx < 0.9 * base_dx,
+        tip_dx.abs() < 0.5 * base_dx,
         "tip moved {tip_dx} mm for a 3 mm base push"
+    );
+    let p = sim.needle.model.positions();
+    let (b0, t0) = (p[0], p[p.len() - 1]);
+    let axis = (t0 - b0).normalize();
+    let bend = p
+        .iter()
+        .map(|x| ((x - b0) - (x - b0).dot(&axis) * axis).norm())
+        .fold(0.0, f64::max);
+    assert!(
+        bend > 0.05,
+        "the needle stayed straight (largest deviation {bend} mm)"
     );
     // The gel moved along +x around the needle.
     let mean_dx: f64 = sim
@@ -248,7 +272,7 @@ fn embedded_path_and_obstacles_move_with_the_gel() {
     let t = tets[e.tet];
     let expect: Vector3<f64> = (0..4).map(|k| e.weights[k] * gel.positions()[t[k]]).sum();
     let rest_centre: Vector3<f64> = (0..4).map(|k| e.weights[k] * gel.mesh().nodes[t[k]]).sum();
-    assert!((rest_centre - Vector3::new(310.0, 0.0, 30.0)).norm() < 1e-9);
+    assert!((rest_centre - Vector3::new(304.0, 0.0, 50.0)).norm() < 1e-9);
     assert!((e.position(gel.positions(), tets) - expect).norm() < 1e-12);
     assert!(
         (expect - rest_centre).norm() > 1e-4,
