@@ -61,6 +61,10 @@ pub enum JacobianMode {
     /// No contact flips inside a column, and 6 back-substitutions replace 6 Gauss-Seidel solves.
     /// Falls back to `Solve` when the active-set matrix is singular.
     Linearized,
+    /// `Linearized` until the tip has punctured the surface (the contact opening and closing
+    /// inside a finite difference is what makes `Solve` chatter there), `Solve` once inserted
+    /// (where the frozen set mispredicts the shaft friction switching between stick and slip).
+    Hybrid,
 }
 
 /// Tuning of the inverse update, `Default` gives the documented values.
@@ -104,7 +108,7 @@ pub struct InverseParams {
     /// opening, friction saturating) the step stays where the linearisation holds, and the next
     /// step corrects from the new state. 3 mm per step is 75 mm/s at 40 ms per step.
     pub max_base_step: f64,
-    /// How the Jacobian columns are computed (default [`JacobianMode::Linearized`]).
+    /// How the Jacobian columns are computed (default [`JacobianMode::Hybrid`]).
     pub jacobian: JacobianMode,
     /// Gauss-Seidel tolerance of the 6 Jacobian solves (default 1e-5): their error enters `J`
     /// divided by `δq`, and a relative solve error of 1e-5 is far below the forward difference's
@@ -134,7 +138,7 @@ impl Default for InverseParams {
             active_set: true,
             eliminate_base: true,
             max_base_step: f64::INFINITY,
-            jacobian: JacobianMode::Linearized,
+            jacobian: JacobianMode::Hybrid,
             presolve_tolerance: 1e-5,
             jacobian_tolerance: 1e-5,
         }
@@ -684,7 +688,12 @@ impl<const M: usize> Controller<M> {
         } else {
             // 4. Jacobian by forward differences, W fixed, warm start λ_q.
             let mut jac = SMatrix::<f64, 4, JOINTS>::zeros();
-            let linear = p.jacobian == JacobianMode::Linearized && self.factor_linearized(frame);
+            let linearize = match p.jacobian {
+                JacobianMode::Solve => false,
+                JacobianMode::Linearized => true,
+                JacobianMode::Hybrid => frame.inserted == 0,
+            };
+            let linear = linearize && self.factor_linearized(frame);
             for i in 0..JOINTS {
                 let mut qi = q;
                 qi[i] += p.joint_step;

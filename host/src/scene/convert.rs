@@ -66,6 +66,7 @@ impl Scene {
             jacobian: match v.jacobian {
                 super::JacobianSpec::Solve => JacobianMode::Solve,
                 super::JacobianSpec::Linearized => JacobianMode::Linearized,
+                super::JacobianSpec::Hybrid => JacobianMode::Hybrid,
             },
             gs: GsParams {
                 tolerance: self.solver.gs_tolerance,

@@ -295,8 +295,9 @@ pub struct InverseSpec {
     #[serde(default = "default_inverse_tol")]
     pub tolerance: f64,
     /// How the Jacobian columns are computed: `"solve"` (a Gauss-Seidel solve at each perturbed
-    /// joint vector, the paper's eq. 14) or `"linearized"` (the same solve with the active set
-    /// of the unperturbed solve frozen: no contact flips inside a finite difference).
+    /// joint vector, the paper's eq. 14), `"linearized"` (the same solve with the active set
+    /// of the unperturbed solve frozen: no contact flips inside a finite difference) or
+    /// `"hybrid"` (linearized before puncture, solve once inserted; the default).
     #[serde(default = "default_jacobian")]
     pub jacobian: JacobianSpec,
     /// Trust region of the Newton step: the needle base moves at most this far per step [mm].
@@ -312,6 +313,8 @@ pub enum JacobianSpec {
     Solve,
     /// The frozen-active-set solve (exact one-sided derivative at the same δq).
     Linearized,
+    /// Linearized before puncture, a full solve once inserted.
+    Hybrid,
 }
 
 impl Default for InverseSpec {
@@ -506,10 +509,10 @@ fn default_inverse_tol() -> f64 {
     1.0e-6
 }
 fn default_max_base_step() -> f64 {
-    3.0
+    5.0
 }
 fn default_jacobian() -> JacobianSpec {
-    JacobianSpec::Linearized
+    JacobianSpec::Hybrid
 }
 fn default_gs_tol() -> f64 {
     1.0e-10
