@@ -988,27 +988,22 @@ where
             .iter()
             .flat_map(|r| r.error_by_depth.iter().map(|p| p.0))
             .fold(0.0, f64::max);
-        let (lo, hi) = lines
+        let hi = lines
             .iter()
             .flat_map(|r| r.error_by_depth.iter().map(|p| p.1))
-            .filter(|e| e.is_finite() && *e > 0.0)
-            .fold((f64::INFINITY, 0.0f64), |(a, b), e| (a.min(e), b.max(e)));
-        let lo = if lo.is_finite() {
-            (lo * 0.8).max(1e-3)
-        } else {
-            1e-2
-        };
-        let hi = (hi * 1.3).max(lo * 10.0);
+            .filter(|e| e.is_finite())
+            .fold(0.0, f64::max);
+        let hi = nice_max(hi);
         let mut chart = ChartBuilder::on(panel)
             .caption(format!("{scene} path"), ("sans-serif", 18))
             .margin(12)
             .x_label_area_size(45)
-            .y_label_area_size(70)
-            .build_cartesian_2d(0.0..nice_max(max_d).max(1.0), (lo..hi).log_scale())?;
+            .y_label_area_size(60)
+            .build_cartesian_2d(0.0..nice_max(max_d).max(1.0), 0.0..hi)?;
         chart
             .configure_mesh()
             .x_desc("insertion depth [mm]")
-            .y_desc("tracking error |tip − target| [mm] (log)")
+            .y_desc("tracking error |tip − target| [mm]")
             .label_style(("sans-serif", 14))
             .axis_desc_style(("sans-serif", 15))
             .draw()?;
@@ -1026,11 +1021,8 @@ where
             }
             chart
                 .draw_series(LineSeries::new(
-                    r.error_by_depth
-                        .iter()
-                        .filter(|p| p.1 > 0.0 && p.1.is_finite())
-                        .copied(),
-                    color.stroke_width(2),
+                    r.error_by_depth.iter().filter(|p| p.1.is_finite()).copied(),
+                    color.stroke_width(1),
                 ))?
                 .label(label)
                 .legend(move |(x, y)| {

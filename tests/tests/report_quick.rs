@@ -1,0 +1,115 @@
+//! The quick benchmark report (`needle report --quick`) end to end: every promised file exists
+//! and is non-empty, `runs.csv` has one row per run, the charts are real SVG and PNG files.
+
+use needle_host::report::{Group, ReportOptions, report};
+use std::path::{Path, PathBuf};
+
+/// A fresh folder under the system's temporary folder, removed on drop.
+struct TempDir(PathBuf);
+
+impl TempDir {
+    fn new(name: &str) -> Self {
+        let p = std::env::temp_dir().join(format!("{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&p);
+        Self(p)
+    }
+}
+
+impl Drop for TempDir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+fn read(dir: &Path, name: &str) -> Vec<u8> {
+    let p = dir.join(name);
+    let bytes = std::fs::read(&p).unwrap_or_else(|e| panic!("{}: {e}", p.display()));
+    assert!(!bytes.is_empty(), "{} is empty", p.display());
+    bytes
+}
+
+#[test]
+#[ignore = "runs 7 insertions (≈ 10 s in release); CI runs the ignored tests in release"]
+fn quick_report_writes_every_promised_file() {
+    let tmp = TempDir::new("needle-report-quick");
+    let out = tmp.0.join("report");
+    let summary = report(&ReportOptions {
+        out_dir: out.clone(),
+        quick: true,
+        steps: None,
+        progress: false,
+    })
+    .expect("the quick report is written");
+
+    // Every group has at least one run, and every run ran (a breakdown would still be reported).
+    for g in Group::ALL {
+        assert!(
+            summary.runs.iter().any(|r| r.parameter(g).is_some()),
+            "no run in group {g:?}"
+        );
+    }
+    for r in &summary.runs {
+        let s = r
+            .summary
+            .as_ref()
+            .unwrap_or_else(|| panic!("run {} did not start: {:?}", r.id, r.failure));
+        assert!(s.steps > 0, "run {} ran no step", r.id);
+    }
+
+    let promised = [
+        "summary.md",
+        "runs.csv",
+        "error_vs_depth.csv",
+        "report.json",
+        "error_vs_depth.svg",
+        "error_vs_depth.png",
+        "stage_times.svg",
+        "stage_times.png",
+        "speed_vs_error.svg",
+        "speed_vs_error.png",
+    ];
+    for f in promised {
+        read(&out, f);
+        assert!(
+            summary.files.iter().any(|p| p.ends_with(f)),
+            "{f} missing from ReportSummary::files"
+        );
+    }
+
+    // runs.csv: a header and one row per run, each with as many fields as the header.
+    let csv = String::from_utf8(read(&out, "runs.csv")).expect("UTF-8");
+    let lines: Vec<&str> = csv.lines().filter(|l| !l.trim().is_empty()).collect();
+    assert_eq!(
+        lines.len(),
+        summary.runs.len() + 1,
+        "runs.csv: expected a header and {} rows",
+        summary.runs.len()
+    );
+    assert!(lines[0].starts_with("run,scene,controller"));
+
+    // error_vs_depth.csv: a header and at least one point per run that punctured the gel.
+    let err = String::from_utf8(read(&out, "error_vs_depth.csv")).expect("UTF-8");
+    assert!(err.lines().next().unwrap_or("").contains("depth_mm"));
+    assert!(err.lines().count() > summary.runs.len());
+
+    // summary.md: a table per group and the paper's figures, labelled as such.
+    let md = String::from_utf8(read(&out, "summary.md")).expect("UTF-8");
+    for g in Group::ALL {
+        assert!(md.contains(g.title()), "summary.md lacks the table {g:?}");
+    }
+    assert!(md.contains("The paper's figures"));
+
+    for chart in ["error_vs_depth", "stage_times", "speed_vs_error"] {
+        let svg = String::from_utf8(read(&out, &format!("{chart}.svg"))).expect("UTF-8 SVG");
+        assert!(svg.contains("<svg"), "{chart}.svg has no <svg element");
+        assert!(
+            svg.trim_end().ends_with("</svg>"),
+            "{chart}.svg is not closed"
+        );
+        let png = read(&out, &format!("{chart}.png"));
+        assert!(
+            png.starts_with(b"\x89PNG\r\n\x1a\n"),
+            "{chart}.png lacks the PNG signature"
+        );
+    }
+}
