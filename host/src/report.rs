@@ -119,6 +119,9 @@ pub struct Membership {
     pub group: Group,
     /// The swept parameter's value as shown in the table (e.g. `δq = 0.001 rad`).
     pub parameter: String,
+    /// Position in the planned order (rows of a group's table follow it).
+    #[serde(skip)]
+    order: usize,
 }
 
 /// One simulation of the report.
@@ -265,7 +268,7 @@ fn plan(quick: bool) -> Vec<Spec> {
                 parameter: if quick {
                     "600 nodes".into()
                 } else {
-                    "scene defaults".into()
+                    "scene defaults (1500 nodes)".into()
                 },
             });
         }
@@ -340,7 +343,7 @@ pub fn report(opts: &ReportOptions) -> Result<ReportSummary, ReportError> {
     let mut runs: Vec<ReportRun> = Vec::new();
     let mut scenes: Vec<Scene> = Vec::new();
     let mut index: HashMap<(String, &'static str), usize> = HashMap::new();
-    for spec in plan(opts.quick) {
+    for (order, spec) in plan(opts.quick).into_iter().enumerate() {
         let base = Scene::builtin(spec.scene)
             .ok_or_else(|| err(Path::new(spec.scene), "no such embedded scene"))?;
         let scene = base
@@ -350,6 +353,7 @@ pub fn report(opts: &ReportOptions) -> Result<ReportSummary, ReportError> {
         let membership = Membership {
             group: spec.group,
             parameter: spec.parameter,
+            order,
         };
         if let Some(&i) = index.get(&(key.clone(), controller_name(spec.controller))) {
             runs[i].memberships.push(membership);
@@ -761,7 +765,15 @@ fn summary_markdown(s: &ReportSummary, files: &[PathBuf]) -> String {
     );
 
     for g in Group::ALL {
-        let rows: Vec<&ReportRun> = s.runs.iter().filter(|r| r.parameter(g).is_some()).collect();
+        let mut rows: Vec<(usize, &ReportRun)> = s
+            .runs
+            .iter()
+            .filter_map(|r| {
+                let m = r.memberships.iter().find(|m| m.group == g)?;
+                Some((m.order, r))
+            })
+            .collect();
+        rows.sort_by_key(|(order, _)| *order);
         if rows.is_empty() {
             continue;
         }
@@ -778,7 +790,7 @@ fn summary_markdown(s: &ReportSummary, files: &[PathBuf]) -> String {
         let cols = 18 + usize::from(mesh);
         let _ = writeln!(md, "|{}", "---|".repeat(cols));
         let mut notes = Vec::new();
-        for r in rows {
+        for (_, r) in rows {
             let param = r.parameter(g).unwrap_or("");
             let _ = write!(
                 md,
