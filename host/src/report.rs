@@ -289,7 +289,9 @@ fn plan(quick: bool) -> Vec<Spec> {
             });
         }
     }
-    let sweeps: [(Group, &str, &str, &[f64], &[f64]); 3] = [
+    // (group, scene field, parameter text, full set, quick set)
+    type Sweep<'a> = (Group, &'a str, &'a str, &'a [f64], &'a [f64]);
+    let sweeps: [Sweep; 3] = [
         (
             Group::DeltaQ,
             "inverse.delta_q",
@@ -1236,7 +1238,9 @@ where
 {
     // One series per (group, controller) so that every colour has a legend entry; the
     // controllers group splits into inverse and naive.
-    let mut series: Vec<(String, Vec<(f64, f64, bool)>)> = Vec::new();
+    // (legend, points (e_mean, time, completed))
+    type Series = (String, Vec<(f64, f64, bool)>);
+    let mut series: Vec<Series> = Vec::new();
     for (r, x, y) in pts {
         for m in &r.memberships {
             let key = if m.group == Group::Controllers {
