@@ -235,14 +235,14 @@ pub fn naive_trajectory(
         let c = ((k + 1) as f64 * adv).min(path.total_length());
         let (tip, t) = path.at(c);
         let base = tip - scene.needle.length * t;
-        match solve_ik(
-            &chain,
-            [base.x, base.y, base.z],
-            [t.x, t.y, t.z],
-            &q,
-            &IkParams::default(),
-        ) {
-            Ok(r) if r.position_error <= 1e-3 && r.angle_error <= 1e-4 => {
+        let ik = IkParams {
+            max_iterations: 2000,
+            ..IkParams::default()
+        };
+        match solve_ik(&chain, [base.x, base.y, base.z], [t.x, t.y, t.z], &q, &ik) {
+            // A rigid model needs no better than 10 µm / 1 mrad; the wrist is near singular along
+            // these paths, where the damped IK creeps towards tighter tolerances.
+            Ok(r) if r.position_error <= 1e-2 && r.angle_error <= 1e-3 => {
                 q = r.q;
                 out.push(q);
             }

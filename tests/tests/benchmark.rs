@@ -64,25 +64,53 @@ fn complex_path_inverse_within_the_papers_bounds() {
     }
 }
 
-/// The naive baseline runs on the complex path without a crash, hang or NaN, and its error is
-/// larger than the inverse controller's.
+/// The naive baseline runs on the complex path without a crash, hang or NaN (it may stop
+/// cleanly where the rigid model's pose leaves the robot's reach, as the paper's could not
+/// finish either), and over the depth it reached it tracks worse than the inverse controller.
 #[test]
 #[ignore = "full benchmark insertion (release, ~30 s): run with --include-ignored"]
 fn naive_baseline_runs_on_the_complex_path_and_tracks_worse() {
-    let naive = run_scene("complex", ControllerKind::Naive);
-    let inverse = run_scene("complex", ControllerKind::Inverse);
-    assert!(naive.steps > 0);
-    if naive.stopped.is_some() {
-        assert!(!naive.completed, "a stopped run is not complete");
-    }
+    let scene = Scene::builtin("complex").expect("embedded scene");
+    let naive = run(
+        &scene,
+        &RunOptions {
+            controller: ControllerKind::Naive,
+            ..RunOptions::default()
+        },
+        |_| {},
+    )
+    .expect("the naive run starts");
+    let inverse = run(&scene, &RunOptions::default(), |_| {}).expect("the inverse run starts");
+    let s = &naive.summary;
+    eprintln!("naive: {}", serde_json::to_string(s).unwrap_or_default());
+    assert!(s.steps > 0);
     assert!(
-        naive.e_max_mm.is_finite() && naive.e_mean_mm.is_finite(),
-        "{naive:?}"
+        s.completed || s.stopped.is_some(),
+        "an incomplete run says why"
     );
     assert!(
-        naive.e_mean_mm > inverse.e_mean_mm,
-        "naive e_mean {} ≤ inverse {}",
-        naive.e_mean_mm,
-        inverse.e_mean_mm
+        naive
+            .reports
+            .iter()
+            .all(|r| r.error.is_finite() && r.tip.iter().all(|v| v.is_finite()))
+    );
+    // Mean error inside the gel over the steps both runs made.
+    let common = naive.reports.len();
+    let mean = |reports: &[needle_host::world::StepReport]| {
+        let inside: Vec<f64> = reports[..common]
+            .iter()
+            .filter(|r| r.inserted)
+            .map(|r| r.error)
+            .collect();
+        assert!(!inside.is_empty(), "no step inside the gel");
+        inside.iter().sum::<f64>() / inside.len() as f64
+    };
+    let (e_naive, e_inverse) = (mean(&naive.reports), mean(&inverse.reports));
+    eprintln!(
+        "over the first {common} steps: naive e_mean {e_naive:.3} mm, inverse {e_inverse:.3} mm"
+    );
+    assert!(
+        e_naive > e_inverse,
+        "naive e_mean {e_naive} ≤ inverse {e_inverse}"
     );
 }
