@@ -1,5 +1,6 @@
 //! `needle-host`: the FE half of the simulation.
 
+pub mod bodies;
 pub mod compliance;
 pub mod constraints;
 pub mod fem;
@@ -8,8 +9,7 @@ pub mod linalg;
 pub mod mesh;
 pub mod output;
 pub mod proximity;
-pub mod scene;
-pub mod bodies;
-pub mod world;
 pub mod report;
 pub mod run;
+pub mod scene;
+pub mod world;

@@ -7,14 +7,21 @@ use std::path::PathBuf;
 /// # Panics
 /// Panics when the file is missing: a reference test must fail, not pass silently.
 pub fn ref_path(name: &str) -> PathBuf {
-    let p = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("data/ref").join(name);
-    assert!(p.is_file(), "reference file {} is missing (copy it from shared/ref/)", p.display());
+    let p = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("data/ref")
+        .join(name);
+    assert!(
+        p.is_file(),
+        "reference file {} is missing (copy it from shared/ref/)",
+        p.display()
+    );
     p
 }
 
 /// Parses a reference JSON file.
 pub fn load_ref(name: &str) -> serde_json::Value {
     let p = ref_path(name);
-    let text = std::fs::read_to_string(&p).unwrap_or_else(|e| panic!("reading {}: {e}", p.display()));
+    let text =
+        std::fs::read_to_string(&p).unwrap_or_else(|e| panic!("reading {}: {e}", p.display()));
     serde_json::from_str(&text).unwrap_or_else(|e| panic!("parsing {}: {e}", p.display()))
 }
