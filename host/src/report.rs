@@ -1197,16 +1197,16 @@ where
         .margin(15)
         .x_label_area_size(45)
         .y_label_area_size(60);
-    // Log scale only when the errors span more than a decade and a half (a naive run that
+    // Log scale only when the errors span more than two decades (a naive run that
     // drifts far away); its tick labels are sparse, so the x label says so.
-    if xhi / xlo > 30.0 {
+    if xhi / xlo > 100.0 {
         let mut chart =
             builder.build_cartesian_2d((xlo * 0.7..xhi * 1.4).log_scale(), 0.0..ymax * 1.15)?;
         chart
             .configure_mesh()
             .x_desc("e_mean [mm] (log scale)")
             .y_desc("time per step, median [ms]")
-            .x_labels(12)
+            .x_labels(8)
             .x_label_formatter(&|x| format!("{x:.2}"))
             .label_style(("sans-serif", 14))
             .axis_desc_style(("sans-serif", 15))
@@ -1236,39 +1236,61 @@ where
     DB::ErrorType: 'static,
     X: Ranged<ValueType = f64>,
 {
-    // One series per (group, controller) so that every colour has a legend entry; the
-    // controllers group splits into inverse and naive.
-    // (legend, points (e_mean, time, completed))
-    type Series = (String, Vec<(f64, f64, bool)>);
+    // One series per (group, controller, scene) so that every marker has a legend entry: the
+    // colour says the group (the controllers group splits into inverse and naive), the shape the
+    // scene (circle: complex, triangle: simple); a hollow marker is a run that did not complete.
+    // (legend, colour index, simple scene, points (e_mean, time, completed))
+    type Series = (String, usize, bool, Vec<(f64, f64, bool)>);
     let mut series: Vec<Series> = Vec::new();
     for (r, x, y) in pts {
         for m in &r.memberships {
-            let key = if m.group == Group::Controllers {
-                format!("{} ({})", m.group.name(), controller_name(r.controller))
-            } else {
-                m.group.name().to_owned()
+            let (name, colour) = match (m.group, r.controller) {
+                (Group::Controllers, ControllerKind::Naive) => {
+                    ("controllers (naive)".to_owned(), 5)
+                }
+                (Group::Controllers, ControllerKind::Inverse) => {
+                    ("controllers (inverse)".to_owned(), 0)
+                }
+                (g, _) => (
+                    g.name().to_owned(),
+                    Group::ALL.iter().position(|a| *a == g).unwrap_or(0),
+                ),
             };
+            let key = format!("{name}, {}", r.scene);
             let done = r.completed();
             match series.iter_mut().find(|s| s.0 == key) {
-                Some(s) => s.1.push((*x, *y, done)),
-                None => series.push((key, vec![(*x, *y, done)])),
+                Some(s) => s.3.push((*x, *y, done)),
+                None => series.push((key, colour, r.scene == "simple", vec![(*x, *y, done)])),
             }
         }
     }
-    for (k, (name, p)) in series.iter().enumerate() {
-        let color = COLORS[k % COLORS.len()];
-        let size = 7 - (k as i32 % 3);
-        chart
-            .draw_series(p.iter().map(move |&(x, y, done)| {
-                let style = if done {
-                    color.filled()
-                } else {
-                    color.stroke_width(2)
-                };
-                Circle::new((x, y), size, style)
-            }))?
-            .label(name.clone())
-            .legend(move |(x, y)| Circle::new((x + 7, y), 5, color.filled()));
+    series.sort_by_key(|s| (s.1, s.2));
+    for (name, colour, simple, p) in &series {
+        let color = COLORS[colour % COLORS.len()];
+        let style = move |done: bool| {
+            if done {
+                color.filled()
+            } else {
+                color.stroke_width(2)
+            }
+        };
+        if *simple {
+            chart
+                .draw_series(
+                    p.iter()
+                        .map(move |&(x, y, done)| TriangleMarker::new((x, y), 7, style(done))),
+                )?
+                .label(name.clone())
+                .legend(move |(x, y)| TriangleMarker::new((x + 7, y), 6, color.filled()));
+        } else {
+            chart
+                .draw_series(
+                    p.iter()
+                        .map(move |&(x, y, done)| Circle::new((x, y), 6, style(done))),
+                )?
+                .label(name.clone())
+                .legend(move |(x, y)| Circle::new((x + 7, y), 5, color.filled()));
+        }
     }
     chart
         .draw_series(
