@@ -473,7 +473,7 @@ fn outcome(r: &ReportRun) -> String {
             if s.completed {
                 "completed"
             } else {
-                "BROKE DOWN after"
+                "STOPPED early after"
             },
             s.steps,
             s.steps_planned,
@@ -1030,7 +1030,7 @@ where
             if let Some(s) = &r.summary {
                 let _ = write!(label, ": e_mean {:.2} mm", s.e_mean_mm);
                 if !s.completed {
-                    label.push_str(&format!(" (broke down at step {})", s.steps));
+                    label.push_str(&format!(" (stopped at step {}: see summary.md)", s.steps));
                 }
             }
             chart
