@@ -39,26 +39,35 @@ impl Gel {
     }
 }
 
-impl FeBody for Gel {
-    fn dofs(&self) -> usize {
-        self.model.dof_count()
-    }
+/// `FeBody` for a wrapper `{ model, zeros }` around a model with the shared free-motion API
+/// (`GelModel`, `NeedleModel`): no external load, factor renewal read from `factor_age`.
+macro_rules! fe_body {
+    ($t:ty) => {
+        impl FeBody for $t {
+            fn dofs(&self) -> usize {
+                self.model.dof_count()
+            }
 
-    fn free_motion(&mut self, dx: &mut [f64]) -> Result<bool, SimError> {
-        let out = self.model.free_motion(&self.zeros)?;
-        dx.copy_from_slice(out);
-        Ok(self.model.factor_age() == Some(0))
-    }
+            fn free_motion(&mut self, dx: &mut [f64]) -> Result<bool, SimError> {
+                let out = self.model.free_motion(&self.zeros)?;
+                dx.copy_from_slice(out);
+                Ok(self.model.factor_age() == Some(0))
+            }
 
-    fn solve_many(&mut self, rhs: &mut [f64], ncols: usize) -> Result<(), SimError> {
-        Ok(self.model.solve_columns(rhs, ncols)?)
-    }
+            fn solve_many(&mut self, rhs: &mut [f64], ncols: usize) -> Result<(), SimError> {
+                Ok(self.model.solve_columns(rhs, ncols)?)
+            }
 
-    fn apply(&mut self, dx: &[f64]) {
-        // Finite by the world's check before the call; the length is the model's own.
-        let _ = self.model.apply_displacement(dx);
-    }
+            fn apply(&mut self, dx: &[f64]) {
+                // Finite by the world's check before the call; the length is the model's own.
+                let _ = self.model.apply_displacement(dx);
+            }
+        }
+    };
 }
+
+fe_body!(Gel);
+fe_body!(Needle);
 
 impl GelBody for Gel {
     fn nodes(&self) -> &[Vector3<f64>] {
@@ -92,26 +101,6 @@ impl Needle {
             zeros: vec![0.0; model.dof_count()],
             model,
         }
-    }
-}
-
-impl FeBody for Needle {
-    fn dofs(&self) -> usize {
-        self.model.dof_count()
-    }
-
-    fn free_motion(&mut self, dx: &mut [f64]) -> Result<bool, SimError> {
-        let out = self.model.free_motion(&self.zeros)?;
-        dx.copy_from_slice(out);
-        Ok(self.model.factor_age() == Some(0))
-    }
-
-    fn solve_many(&mut self, rhs: &mut [f64], ncols: usize) -> Result<(), SimError> {
-        Ok(self.model.solve_columns(rhs, ncols)?)
-    }
-
-    fn apply(&mut self, dx: &[f64]) {
-        let _ = self.model.apply_displacement(dx);
     }
 }
 

@@ -124,6 +124,38 @@ pub struct ConstraintGroup {
     pub delta: [f64; 6],
 }
 
+impl ConstraintGroup {
+    /// A needle–gel group: the same `rows` directions `d` on needle point `needle` (sign +1) and
+    /// gel point `gel` (sign −1), as contact and sliding groups are.
+    pub fn pair(
+        kind: RowGroup,
+        role: GroupRole,
+        rows: usize,
+        (needle, gel): (usize, usize),
+        d: Matrix3<f64>,
+        delta: [f64; 6],
+    ) -> Self {
+        let side = |model, point, sign| Attachment {
+            model,
+            point,
+            row_offset: 0,
+            rows,
+            d,
+            sign,
+        };
+        Self {
+            kind,
+            role,
+            rows,
+            attachments: vec![
+                side(Model::Needle, needle, 1.0),
+                side(Model::Gel, gel, -1.0),
+            ],
+            delta,
+        }
+    }
+}
+
 /// An observed 3-vector `o = A P x` of one model.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Observation {

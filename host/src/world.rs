@@ -850,30 +850,14 @@ impl<G: GelBody, N: NeedleBody> World<G, N> {
             } else {
                 group(GroupKind::Bilateral, 0.0, 0.0)
             };
-            set.groups.push(ConstraintGroup {
+            set.groups.push(ConstraintGroup::pair(
                 kind,
-                role: GroupRole::Sliding(s.id),
+                GroupRole::Sliding(s.id),
                 rows,
-                attachments: vec![
-                    Attachment {
-                        model: Model::Needle,
-                        point: np,
-                        row_offset: 0,
-                        rows,
-                        d,
-                        sign: 1.0,
-                    },
-                    Attachment {
-                        model: Model::Gel,
-                        point: gp,
-                        row_offset: 0,
-                        rows,
-                        d,
-                        sign: -1.0,
-                    },
-                ],
+                (np, gp),
+                d,
                 delta,
-            });
+            ));
         }
 
         // φ: the tip on the gel surface, before puncture.
@@ -907,30 +891,14 @@ impl<G: GelBody, N: NeedleBody> World<G, N> {
                 } else {
                     group(GroupKind::Unilateral, 0.0, 0.0)
                 };
-                set.groups.push(ConstraintGroup {
+                set.groups.push(ConstraintGroup::pair(
                     kind,
-                    role: GroupRole::Contact,
+                    GroupRole::Contact,
                     rows,
-                    attachments: vec![
-                        Attachment {
-                            model: Model::Needle,
-                            point: np,
-                            row_offset: 0,
-                            rows,
-                            d,
-                            sign: 1.0,
-                        },
-                        Attachment {
-                            model: Model::Gel,
-                            point: gp,
-                            row_offset: 0,
-                            rows,
-                            d,
-                            sign: -1.0,
-                        },
-                    ],
+                    (np, gp),
+                    d,
                     delta,
-                });
+                ));
             }
         }
         self.set = set;
