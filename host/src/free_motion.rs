@@ -135,6 +135,46 @@ impl ReducedSystem {
         }
     }
 
+    /// Writes the matrix values: zero, the elements' contributions through `write`, `M/h²`.
+    fn write_values(&mut self, write: impl FnOnce(&mut [f64])) {
+        self.matrix.fill_zero();
+        write(&mut self.matrix.values);
+        self.add_regularization();
+    }
+
+    /// The free-motion solve both models share: refactorises if due (`write` fills the
+    /// elements' values), then `dx = (K + M/h²)⁻¹ (f_ext − f_int)` over global dofs.
+    fn free_motion(
+        &mut self,
+        f_ext: &[f64],
+        f_int: &[f64],
+        dx: &mut [f64],
+        write: impl FnOnce(&mut [f64]),
+    ) -> Result<(), FemError> {
+        if self.needs_refactor() {
+            self.write_values(write);
+            self.factorize()?;
+        } else if let Some(age) = self.factor_age.as_mut() {
+            *age += 1;
+        }
+        for (d, (fe, fi)) in dx.iter_mut().zip(f_ext.iter().zip(f_int)) {
+            *d = fe - fi;
+        }
+        self.solve_global(dx)
+    }
+
+    /// [`Self::solve_global`] after checking the length (one value per global dof).
+    fn solve_checked(&mut self, rhs: &mut [f64]) -> Result<(), FemError> {
+        if rhs.len() != self.dof_map.len() {
+            return Err(FemError::DimensionMismatch {
+                what: "right-hand side",
+                expected: self.dof_map.len(),
+                got: rhs.len(),
+            });
+        }
+        self.solve_global(rhs)
+    }
+
     /// Numeric factorisation of the assembled values.
     fn factorize(&mut self) -> Result<(), FemError> {
         self.factor_age = None;
@@ -415,10 +455,8 @@ impl GelModel {
     }
 
     fn write_matrix(&mut self) {
-        self.sys.matrix.fill_zero();
-        self.tetra
-            .assemble(&self.slots, &mut self.sys.matrix.values, 1.0);
-        self.sys.add_regularization();
+        let (tetra, slots) = (&self.tetra, &self.slots);
+        self.sys.write_values(|v| tetra.assemble(slots, v, 1.0));
     }
 
     /// Numeric factorisation of the matrix last written by [`GelModel::assemble`] (resets the
@@ -448,16 +486,11 @@ impl GelModel {
     pub fn free_motion(&mut self, f_ext: &[f64]) -> Result<&[f64], FemError> {
         check_vec("external forces", f_ext, self.dof_count())?;
         self.compute_internal_forces();
-        if self.sys.needs_refactor() {
-            self.write_matrix();
-            self.sys.factorize()?;
-        } else if let Some(age) = self.sys.factor_age.as_mut() {
-            *age += 1;
-        }
-        for (d, (fe, fi)) in self.dx.iter_mut().zip(f_ext.iter().zip(&self.f_int)) {
-            *d = fe - fi;
-        }
-        self.sys.solve_global(&mut self.dx)?;
+        let (tetra, slots) = (&self.tetra, &self.slots);
+        self.sys
+            .free_motion(f_ext, &self.f_int, &mut self.dx, |v| {
+                tetra.assemble(slots, v, 1.0)
+            })?;
         Ok(&self.dx)
     }
 
@@ -472,14 +505,7 @@ impl GelModel {
     /// # Errors
     /// Wrong length, or no factorisation yet.
     pub fn solve(&mut self, rhs: &mut [f64]) -> Result<(), FemError> {
-        if rhs.len() != self.dof_count() {
-            return Err(FemError::DimensionMismatch {
-                what: "right-hand side",
-                expected: self.dof_count(),
-                got: rhs.len(),
-            });
-        }
-        self.sys.solve_global(rhs)
+        self.sys.solve_checked(rhs)
     }
 
     /// Solves for `ncols` right-hand sides at once (column-major, each of length
@@ -690,10 +716,8 @@ impl NeedleModel {
     }
 
     fn write_matrix(&mut self) {
-        self.sys.matrix.fill_zero();
-        self.beams
-            .assemble(&self.slots, &mut self.sys.matrix.values, 1.0);
-        self.sys.add_regularization();
+        let (beams, slots) = (&self.beams, &self.slots);
+        self.sys.write_values(|v| beams.assemble(slots, v, 1.0));
     }
 
     /// Numeric factorisation of the matrix last written by [`NeedleModel::assemble`].
@@ -722,16 +746,11 @@ impl NeedleModel {
     pub fn free_motion(&mut self, f_ext: &[f64]) -> Result<&[f64], FemError> {
         check_vec("external loads", f_ext, self.dof_count())?;
         self.compute_internal_forces();
-        if self.sys.needs_refactor() {
-            self.write_matrix();
-            self.sys.factorize()?;
-        } else if let Some(age) = self.sys.factor_age.as_mut() {
-            *age += 1;
-        }
-        for (d, (fe, fi)) in self.dx.iter_mut().zip(f_ext.iter().zip(&self.f_int)) {
-            *d = fe - fi;
-        }
-        self.sys.solve_global(&mut self.dx)?;
+        let (beams, slots) = (&self.beams, &self.slots);
+        self.sys
+            .free_motion(f_ext, &self.f_int, &mut self.dx, |v| {
+                beams.assemble(slots, v, 1.0)
+            })?;
         Ok(&self.dx)
     }
 
@@ -746,14 +765,7 @@ impl NeedleModel {
     /// # Errors
     /// Wrong length, or no factorisation yet.
     pub fn solve(&mut self, rhs: &mut [f64]) -> Result<(), FemError> {
-        if rhs.len() != self.dof_count() {
-            return Err(FemError::DimensionMismatch {
-                what: "right-hand side",
-                expected: self.dof_count(),
-                got: rhs.len(),
-            });
-        }
-        self.sys.solve_global(rhs)
+        self.sys.solve_checked(rhs)
     }
 
     /// Solves for `ncols` column-major right-hand sides at once.
