@@ -565,7 +565,7 @@ impl<G: GelBody, N: NeedleBody> World<G, N> {
 
         // 2. Proximity: the row groups.
         let t1 = Instant::now();
-        self.build_rows(c)?;
+        self.build_rows()?;
         let rows = self.set.rows();
         if rows > ROWS {
             return Err(SimError::Capacity {
@@ -776,8 +776,8 @@ impl<G: GelBody, N: NeedleBody> World<G, N> {
         Ok(report)
     }
 
-    /// Builds `self.set` for target `c` from the current and free-motion positions.
-    fn build_rows(&mut self, _c: f64) -> Result<(), SimError> {
+    /// Builds `self.set` from the current and free-motion positions.
+    fn build_rows(&mut self) -> Result<(), SimError> {
         let inter = self.scene.interaction;
         let nodes = self.needle.nodes().to_vec();
         let n_last = nodes.len() - 1;
@@ -1055,18 +1055,17 @@ impl<G: GelBody, N: NeedleBody> World<G, N> {
 
     /// New sliding point every `d_n` of advance; release the ones the tip has been withdrawn past.
     fn update_sliding_points(&mut self) -> Result<(), SimError> {
-        let nodes = self.needle.nodes().to_vec();
+        let nodes = self.needle.nodes();
         let n = nodes.len();
         let tip = nodes[n - 1];
         let tdir = (nodes[n - 1] - nodes[n - 2]).normalize();
-        let gel_nodes = self.gel.nodes().to_vec();
-        let tets = self.gel.tets().to_vec();
+        let (gel_nodes, tets) = (self.gel.nodes(), self.gel.tets());
         // Released once the tip is withdrawn past the point by more than a margin (half the
         // spacing, at most 1 mm): without it, the point created at the tip itself would flicker
         // in and out with the tip's sub-millimetre back-and-forth.
         let margin = (0.5 * self.scene.interaction.constraint_spacing).min(1.0);
         self.sliding.retain(|s| {
-            let g = s.at.position(&gel_nodes, &tets);
+            let g = s.at.position(gel_nodes, tets);
             (g - tip).dot(&tdir) <= margin
         });
         if self.sliding.is_empty() {
@@ -1080,8 +1079,9 @@ impl<G: GelBody, N: NeedleBody> World<G, N> {
             self.last_sliding_depth = depth;
         }
         if depth - self.last_sliding_depth >= self.scene.interaction.constraint_spacing {
-            let loc = TetLocator::new(&gel_nodes, &tets);
-            if let Some(at) = loc.locate(&gel_nodes, &tets, &tip, 1.0) {
+            let (gel_nodes, tets) = (self.gel.nodes(), self.gel.tets());
+            let loc = TetLocator::new(gel_nodes, tets);
+            if let Some(at) = loc.locate(gel_nodes, tets, &tip, 1.0) {
                 self.add_sliding(at);
                 self.last_sliding_depth = depth;
             }
