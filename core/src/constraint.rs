@@ -47,7 +47,7 @@ pub struct GsParams {
 impl Default for GsParams {
     fn default() -> Self {
         Self {
-            tolerance: 1e-10,
+            tolerance: 1e-7,
             max_iterations: 400,
             polish: false,
             relaxation: 1.0,

@@ -85,7 +85,7 @@ pub struct InverseParams {
     pub singular_threshold: f64,
     /// Skip the Jacobian when `‖T‖² ≤ tolerance` [mm²] (default 1e-6).
     pub tolerance: f64,
-    /// Constraint-solve tuning for every solve of the step (default tolerance 1e-10, 400 sweeps,
+    /// Constraint-solve tuning for every solve of the step (default tolerance 1e-7, 400 sweeps,
     /// over-relaxation 1.2).
     pub gs: GsParams,
     /// Warm-start the first solve of a step from the previous step's `λ` (default true).
@@ -127,7 +127,7 @@ impl Default for InverseParams {
             singular_threshold: 5.0,
             tolerance: 1e-6,
             gs: GsParams {
-                tolerance: 1e-10,
+                tolerance: 1e-7,
                 max_iterations: 400,
                 polish: false,
                 // Projected SOR: ~20 % fewer sweeps than plain GS on the synthetic frames of

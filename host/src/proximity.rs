@@ -136,6 +136,11 @@ pub struct SurfaceHit {
     pub point: Vector3<f64>,
     /// The triangle's unit outward normal.
     pub normal: Vector3<f64>,
+    /// The smooth unit outward normal at the closest point: the area-weighted vertex normals of
+    /// the triangle interpolated with `weights` (continuous across edges and vertices, unlike
+    /// `normal`; at the bottom of a dimple pushed by a point it stays along the undeformed
+    /// normal instead of jumping between the steep faces around the pushed node).
+    pub smooth_normal: Vector3<f64>,
     /// Signed distance along the normal (negative: the query point is below the surface) [mm].
     pub signed_distance: f64,
 }
@@ -143,6 +148,7 @@ pub struct SurfaceHit {
 /// Closest-point queries on a (deforming) triangulated surface.
 pub struct SurfaceProjector {
     bvh: Bvh,
+    vertex_normals: Vec<Vector3<f64>>,
 }
 
 impl SurfaceProjector {
@@ -156,8 +162,20 @@ impl SurfaceProjector {
                 Aabb::new(to_g(&mins), to_g(&maxs))
             })
             .collect();
+        let mut vertex_normals = vec![Vector3::zeros(); nodes.len()];
+        for t in triangles {
+            // Cross product = twice the area times the normal: an area-weighted sum.
+            let n = (nodes[t[1]] - nodes[t[0]]).cross(&(nodes[t[2]] - nodes[t[0]]));
+            for &i in t {
+                vertex_normals[i] += n;
+            }
+        }
+        for n in &mut vertex_normals {
+            *n = n.try_normalize(f64::MIN_POSITIVE).unwrap_or_else(Vector3::zeros);
+        }
         Self {
             bvh: Bvh::from_leaves(BvhBuildStrategy::Binned, &leaves),
+            vertex_normals,
         }
     }
 
@@ -182,11 +200,18 @@ impl SurfaceProjector {
         let normal = (x[1] - x[0])
             .cross(&(x[2] - x[0]))
             .try_normalize(f64::MIN_POSITIVE)?;
+        let weights = barycentric_triangle(&x, &point);
+        let smooth_normal = (0..3)
+            .map(|k| weights[k] * self.vertex_normals[t[k]])
+            .sum::<Vector3<f64>>()
+            .try_normalize(f64::MIN_POSITIVE)
+            .unwrap_or(normal);
         Some(SurfaceHit {
             triangle,
-            weights: barycentric_triangle(&x, &point),
+            weights,
             point,
             normal,
+            smooth_normal,
             signed_distance: (p - point).dot(&normal),
         })
     }
@@ -247,6 +272,7 @@ mod tests {
         assert!((hit.point - Vector3::new(0.25, 0.75, 0.0)).norm() < 1e-12);
         assert!((hit.signed_distance - 0.4).abs() < 1e-12);
         assert!((hit.normal - Vector3::z()).norm() < 1e-12);
+        assert!((hit.smooth_normal - Vector3::z()).norm() < 1e-12);
         let w = hit.weights;
         let back = w[0] * n[0] + w[1] * n[2] + w[2] * n[3];
         assert!((back - hit.point).norm() < 1e-12);
@@ -258,5 +284,30 @@ mod tests {
             s.project(&n, &tris, &Vector3::new(0.5, 0.5, 30.0), 1.0)
                 .is_none()
         );
+    }
+
+    #[test]
+    fn smooth_normal_is_continuous_at_the_bottom_of_a_dimple() {
+        // A square fan of four triangles around a centre node pushed down by 1: the face normals
+        // tilt by 45°, the interpolated vertex normal at the centre is the undeformed +z.
+        let n = vec![
+            Vector3::new(0.0, 0.0, -1.0),
+            Vector3::new(1.0, 0.0, 0.0),
+            Vector3::new(0.0, 1.0, 0.0),
+            Vector3::new(-1.0, 0.0, 0.0),
+            Vector3::new(0.0, -1.0, 0.0),
+        ];
+        let tris = vec![[0, 1, 2], [0, 2, 3], [0, 3, 4], [0, 4, 1]];
+        let s = SurfaceProjector::new(&n, &tris);
+        let hit = s
+            .project(&n, &tris, &Vector3::new(1e-9, 2e-9, -0.5), 10.0)
+            .expect("hit");
+        assert!(hit.normal.z < 0.75, "a steep face: {:?}", hit.normal);
+        assert!((hit.smooth_normal - Vector3::z()).norm() < 1e-6, "{:?}", hit.smooth_normal);
+        // Between vertices the smooth normal is the interpolation, still unit and outward.
+        let mid = s
+            .project(&n, &tris, &Vector3::new(0.4, 0.4, 0.5), 10.0)
+            .expect("hit");
+        assert!((mid.smooth_normal.norm() - 1.0).abs() < 1e-12 && mid.smooth_normal.z > 0.7);
     }
 }

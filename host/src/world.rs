@@ -240,10 +240,14 @@ pub struct World<G: GelBody, N: NeedleBody> {
     pub obstacles: Vec<(Embedded, f64)>,
     /// Whether the tip has punctured the surface.
     pub punctured: bool,
+    /// Whether the tip pushed on the surface in the last step (contact force > 0).
+    pub in_contact: bool,
     /// Sliding points, oldest first.
     pub sliding: Vec<SlidingPoint>,
     next_sliding_id: usize,
     last_sliding_depth: f64,
+    /// Smallest rest element size of the gel [mm] (see [`element_size`]).
+    min_element_size: f64,
     /// Joints [rad].
     pub q: [f64; JOINTS],
     /// Target arc length from the start tip [mm].
@@ -341,6 +345,11 @@ impl<G: GelBody, N: NeedleBody> World<G, N> {
         let path = scene
             .sampled_path()
             .map_err(|e| SimError::Setup(e.to_string()))?;
+        let min_element_size = gel
+            .tets()
+            .iter()
+            .map(|t| element_size(gel.rest(), t))
+            .fold(f64::INFINITY, f64::min);
         let rest = gel.rest().to_vec();
         let tets = gel.tets().to_vec();
         let rest_locator = TetLocator::new(&rest, &tets);
@@ -385,6 +394,8 @@ impl<G: GelBody, N: NeedleBody> World<G, N> {
             entry,
             obstacles,
             punctured: false,
+            in_contact: false,
+            min_element_size,
             sliding: Vec::new(),
             next_sliding_id: 0,
             last_sliding_depth: 0.0,
@@ -686,6 +697,7 @@ impl<G: GelBody, N: NeedleBody> World<G, N> {
                 s.cols = self.set.gel.points[a.point].cols.take();
             }
         }
+        self.in_contact = contact_force > 0.0;
         let mut punctured_now = false;
         if !self.punctured && contact_force >= self.scene.interaction.puncture_force {
             self.puncture()?;
@@ -864,15 +876,25 @@ impl<G: GelBody, N: NeedleBody> World<G, N> {
         if !self.punctured {
             let projector = SurfaceProjector::new(self.gel.nodes(), &self.surface);
             let tip = nodes[n_last];
-            if let Some(hit) =
-                projector.project(self.gel.nodes(), &self.surface, &tip, CONTACT_DISTANCE)
+            // A tip that pushed on the surface last step keeps its contact rows however deep the
+            // dimple under it (a point load on a coarse mesh can indent by more than
+            // CONTACT_DISTANCE): a contact is never lost by looking too close.
+            let reach = if self.in_contact {
+                f64::MAX
+            } else {
+                CONTACT_DISTANCE
+            };
+            if let Some(hit) = projector.project(self.gel.nodes(), &self.surface, &tip, reach)
                 && hit.signed_distance < CONTACT_DISTANCE
             {
                 let tri = self.surface[hit.triangle];
                 let s_free: Vector3<f64> =
                     (0..3).map(|k| hit.weights[k] * self.gel_free[tri[k]]).sum();
                 let tip_free = self.needle_free[n_last];
-                let nrm = hit.normal;
+                // The smooth normal: continuous as the closest point crosses edges and vertices
+                // of the faceted, indented surface (the face normal flips between steep faces
+                // around the pushed node and makes the tip chatter sideways).
+                let nrm = hit.smooth_normal;
                 let (t1, t2) = orthonormal_pair(&nrm);
                 let d = Matrix3::from_rows(&[nrm.transpose(), t1.transpose(), t2.transpose()]);
                 let friction = inter.surface_friction > 0.0;
@@ -1078,12 +1100,28 @@ impl<G: GelBody, N: NeedleBody> World<G, N> {
         if depth < self.last_sliding_depth {
             self.last_sliding_depth = depth;
         }
-        if depth - self.last_sliding_depth >= self.scene.interaction.constraint_spacing {
+        let gate = self
+            .scene
+            .interaction
+            .constraint_spacing
+            .max(self.min_element_size);
+        if depth - self.last_sliding_depth >= gate {
             let (gel_nodes, tets) = (self.gel.nodes(), self.gel.tets());
             let loc = TetLocator::new(gel_nodes, tets);
             if let Some(at) = loc.locate(gel_nodes, tets, &tip, 1.0) {
-                self.add_sliding(at);
-                self.last_sliding_depth = depth;
+                // Sliding points no closer than the element size: the gel is linear in an element,
+                // so two points closer than an element are nearly the same constraint. With a stiff
+                // needle their rows are almost parallel: Gauss-Seidel stalls (d_n = 1 mm on a
+                // 5 mm mesh: every step at the sweep cap), and the pair clamps the shaft like a
+                // lever — large opposite lateral forces whose μ_n-bounds lock it, so the shaft
+                // drags the gel instead of sliding (the tip stuck at 4–6 mm depth, 40–75 N of
+                // sliding force). The spacing actually used is `max(d_n, h)`, `h` the rest size of
+                // the tetrahedron the tip is in (see `element_size`).
+                let h = element_size(self.gel.rest(), &tets[at.tet]);
+                if depth - self.last_sliding_depth >= h {
+                    self.add_sliding(at);
+                    self.last_sliding_depth = depth;
+                }
             }
         }
         Ok(())
@@ -1142,6 +1180,17 @@ impl<G: GelBody, N: NeedleBody> World<G, N> {
 const CONTACT_DISTANCE: f64 = 5.0;
 /// Arc length between the target and the second point that defines the target tangent [mm].
 const TANGENT_STEP: f64 = 1.0;
+
+/// Size of a tetrahedron: the edge of the regular tetrahedron of the same volume,
+/// `(6√2 V)^(1/3)` [mm] (a cube of side a split into 6 tetrahedra: 1.23 a).
+pub fn element_size(nodes: &[Vector3<f64>], t: &[usize; 4]) -> f64 {
+    let v = (nodes[t[1]] - nodes[t[0]])
+        .cross(&(nodes[t[2]] - nodes[t[0]]))
+        .dot(&(nodes[t[3]] - nodes[t[0]]))
+        .abs()
+        / 6.0;
+    (6.0 * std::f64::consts::SQRT_2 * v).cbrt()
+}
 
 fn ms(t: Instant) -> f64 {
     t.elapsed().as_secs_f64() * 1e3

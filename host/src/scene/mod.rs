@@ -515,7 +515,7 @@ fn default_jacobian() -> JacobianSpec {
     JacobianSpec::Hybrid
 }
 fn default_gs_tol() -> f64 {
-    1.0e-10
+    1.0e-7
 }
 fn default_gs_iter() -> u32 {
     400
