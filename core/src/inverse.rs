@@ -721,15 +721,34 @@ impl<const M: usize> Controller<M> {
                 eps2 += (1.0 - r * r) * p.damping_max * p.damping_max;
                 report.flags |= StatusFlags::NEAR_SINGULAR;
             }
+            // Joints at a limit that the step pushes further out are locked (their column
+            // removed) and the step recomputed, so that the clamp below never turns the Newton
+            // step into one that does not descend (e.g. J2 and J3 at their limits: the wrist alone
+            // tilting the needle away from an unreachable target).
+            let mut jac_free = jac;
             let mut dq = SVector::<f64, JOINTS>::zeros();
-            match (jjt + Matrix4::identity() * eps2).cholesky() {
-                Some(ch) => {
-                    let y = ch.solve(&t0);
-                    dq = -(jac.transpose() * y);
+            for _ in 0..=JOINTS {
+                let jjt: Matrix4<f64> = jac_free * jac_free.transpose();
+                dq = match (jjt + Matrix4::identity() * eps2).cholesky() {
+                    Some(ch) => -(jac_free.transpose() * ch.solve(&t0)),
+                    None => SVector::zeros(),
+                };
+                let mut locked = false;
+                for i in 0..JOINTS {
+                    let l = &self.chain.limits[i];
+                    let out = (q[i] >= l.upper && dq[i] > 0.0) || (q[i] <= l.lower && dq[i] < 0.0);
+                    if out {
+                        jac_free.set_column(i, &Vector4::zeros());
+                        dq[i] = 0.0;
+                        locked = true;
+                    }
                 }
-                None => report.flags |= StatusFlags::TARGET_UNREACHABLE,
+                if !locked {
+                    break;
+                }
+                report.flags |= StatusFlags::SATURATED_LIMIT;
             }
-            if !dq.iter().all(|x| x.is_finite()) {
+            if !dq.iter().all(|x| x.is_finite()) || dq.iter().all(|x| *x == 0.0) {
                 dq.fill(0.0);
                 report.flags |= StatusFlags::TARGET_UNREACHABLE;
             }
@@ -766,6 +785,19 @@ impl<const M: usize> Controller<M> {
             let mut applied = SVector::<f64, JOINTS>::zeros();
             for i in 0..JOINTS {
                 applied[i] = q_new[i] - q[i];
+            }
+            // The clamps may have bent the step: keep the best multiple α ∈ [0, 1] of what is
+            // left for the linear model, never a step it predicts to make the objective worse.
+            let ja = jac * applied;
+            let jj = ja.norm_squared();
+            if jj > 0.0 {
+                let alpha = (-t0.dot(&ja) / jj).clamp(0.0, 1.0);
+                if alpha < 1.0 {
+                    for i in 0..JOINTS {
+                        q_new[i] = q[i] + alpha * applied[i];
+                        applied[i] *= alpha;
+                    }
+                }
             }
             let predicted = t0 + jac * applied;
             if predicted.norm() > 0.99 * t0.norm() {

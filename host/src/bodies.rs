@@ -173,12 +173,20 @@ pub fn fixed_nodes(scene: &Scene, mesh: &TetMesh) -> Result<Vec<usize>, SimError
     Ok(fixed)
 }
 
-/// The starting joints: the needle straight along the path's entry tangent, its tip `approach`
-/// before the entry point (damped least-squares IK from mid-range).
+/// The starting joints: the scene's `robot.start_joints_deg` when given, else the needle straight
+/// along the path's entry tangent, its tip `approach` before the entry point (damped
+/// least-squares IK from mid-range).
 ///
 /// # Errors
 /// [`SimError::Setup`] when the pose is out of reach.
 pub fn start_joints(scene: &Scene) -> Result<[f64; 6], SimError> {
+    if let Some(q) = &scene.robot.start_joints_deg {
+        let mut out = [0.0; 6];
+        for (o, v) in out.iter_mut().zip(q) {
+            *o = v.to_radians();
+        }
+        return Ok(out);
+    }
     let chain = scene.robot();
     let path = scene
         .sampled_path()

@@ -26,7 +26,7 @@ use crate::scene::Scene;
 use crate::world::{ROWS, SimError, StepReport};
 use needle_bridge::{InProcess, Transport, TransportError};
 use needle_core::ik::{IkParams, solve_ik};
-use needle_core::payload::Command;
+use needle_core::payload::{Command, StatusFlags};
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
@@ -80,6 +80,11 @@ pub struct Timing {
     pub median_ms: f64,
     /// 99th percentile [ms].
     pub p99_ms: f64,
+}
+
+/// Steps whose solver report carries `flag`.
+fn count_flag(reports: &[StepReport], flag: u32) -> usize {
+    reports.iter().filter(|r| r.solver.flags & flag != 0).count()
 }
 
 fn timing(mut v: Vec<f64>) -> Timing {
@@ -159,6 +164,11 @@ pub struct RunSummary {
     pub gs_iterations_max: u32,
     /// Steps in which a solve hit its iteration cap.
     pub gs_not_converged_steps: usize,
+    /// Steps in which the controller reported the target unreachable (no joint update
+    /// improves the objective by 1 %).
+    pub unreachable_steps: usize,
+    /// Steps in which a joint stopped at its limit.
+    pub limit_steps: usize,
     /// Times the host held the insertion because no command arrived within the transport's
     /// deadline.
     pub holds: usize,
@@ -210,7 +220,7 @@ pub fn planned_steps(scene: &Scene) -> usize {
             .sampled_path()
             .map(|p| p.total_length())
             .unwrap_or(0.0);
-        (total / scene.insertion.advance_per_step).ceil() as usize
+        scene.insertion.default_steps(total)
     })
 }
 
@@ -230,9 +240,8 @@ pub fn naive_trajectory(
     };
     let mut q = q0;
     let mut out = Vec::with_capacity(steps);
-    let adv = scene.insertion.advance_per_step;
     for k in 0..steps {
-        let c = ((k + 1) as f64 * adv).min(path.total_length());
+        let c = scene.insertion.target_arc(path.total_length(), k);
         let (tip, t) = path.at(c);
         let base = tip - scene.needle.length * t;
         let ik = IkParams {
@@ -434,7 +443,7 @@ pub fn run_with(
             }
             next_start = next_start.max(now) + p;
         }
-        let c = ((k + 1) as f64 * scene.insertion.advance_per_step).min(sim.path.total_length());
+        let c = scene.insertion.target_arc(sim.path.total_length(), k);
         let step = match opts.controller {
             ControllerKind::Inverse => match sim.prepare(c) {
                 Err(e) => Err(e),
@@ -561,10 +570,9 @@ pub fn run_with(
             .map(|r| r.solver.iterations)
             .max()
             .unwrap_or(0),
-        gs_not_converged_steps: reports
-            .iter()
-            .filter(|r| r.solver.flags & needle_core::payload::StatusFlags::NOT_CONVERGED != 0)
-            .count(),
+        gs_not_converged_steps: count_flag(&reports, StatusFlags::NOT_CONVERGED),
+        unreachable_steps: count_flag(&reports, StatusFlags::TARGET_UNREACHABLE),
+        limit_steps: count_flag(&reports, StatusFlags::SATURATED_LIMIT),
         holds,
         held_ms: held.as_secs_f64() * 1e3,
     };

@@ -235,6 +235,12 @@ fn print_summary(s: &RunSummary, json: bool) -> ExitCode {
             "Gauss-Seidel sweeps per step: mean {:.1}, max {} ({} steps hit the cap)",
             s.gs_iterations_mean, s.gs_iterations_max, s.gs_not_converged_steps
         );
+        if s.unreachable_steps + s.limit_steps > 0 {
+            println!(
+                "target unreachable in {} steps, a joint at its limit in {} steps",
+                s.unreachable_steps, s.limit_steps
+            );
+        }
     }
     if s.holds > 0 {
         println!(

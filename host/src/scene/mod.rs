@@ -121,6 +121,10 @@ pub struct RobotSpec {
     /// Control period: time between two steps [s].
     #[serde(default = "default_dt")]
     pub dt: f64,
+    /// Start joints [deg] (six values within the limits); default: the IK of the start pose
+    /// (tip `path.approach` before the entry point, needle along the entry tangent).
+    #[serde(default)]
+    pub start_joints_deg: Option<Vec<f64>>,
 }
 
 impl Default for RobotSpec {
@@ -134,6 +138,7 @@ impl Default for RobotSpec {
             joint_max_deg: None,
             speed_limit_deg_s: None,
             dt: default_dt(),
+            start_joints_deg: None,
         }
     }
 }
@@ -411,9 +416,13 @@ pub struct InsertionSpec {
     /// Advance of the target parameter c per step, as path length [mm].
     #[serde(default = "default_advance")]
     pub advance_per_step: f64,
-    /// Number of steps; default: until the target reaches the end of the path.
+    /// Number of steps; default: until the target reaches the end of the path (`insert`), or
+    /// one insertion and withdrawal (`back-and-forth`).
     #[serde(default)]
     pub steps: Option<usize>,
+    /// How the target moves along the path.
+    #[serde(default)]
+    pub mode: InsertionMode,
 }
 
 impl Default for InsertionSpec {
@@ -421,6 +430,48 @@ impl Default for InsertionSpec {
         Self {
             advance_per_step: default_advance(),
             steps: None,
+            mode: InsertionMode::default(),
+        }
+    }
+}
+
+/// How the target parameter `c` moves along the path.
+#[derive(Clone, Copy, Debug, Default, Deserialize, Serialize, PartialEq, Eq)]
+#[serde(rename_all = "kebab-case")]
+pub enum InsertionMode {
+    /// From the start to the end of the path, then held there.
+    #[default]
+    Insert,
+    /// To the end of the path and back to the start (the tip in the air again), repeated.
+    BackAndForth,
+}
+
+impl InsertionSpec {
+    /// The target's arc length after step `k` (0-based) on a path of `total` length [mm].
+    pub fn target_arc(&self, total: f64, k: usize) -> f64 {
+        let s = (k + 1) as f64 * self.advance_per_step;
+        match self.mode {
+            InsertionMode::Insert => s.min(total),
+            InsertionMode::BackAndForth => {
+                if total <= 0.0 {
+                    return 0.0;
+                }
+                let phase = s.rem_euclid(2.0 * total);
+                if phase <= total {
+                    phase
+                } else {
+                    2.0 * total - phase
+                }
+            }
+        }
+    }
+
+    /// Steps of the default run: to the end of the path, or there and back.
+    pub fn default_steps(&self, total: f64) -> usize {
+        let one_way = (total / self.advance_per_step).ceil() as usize;
+        match self.mode {
+            InsertionMode::Insert => one_way,
+            InsertionMode::BackAndForth => 2 * one_way,
         }
     }
 }

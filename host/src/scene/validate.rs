@@ -122,6 +122,19 @@ impl Scene {
             );
         }
         positive("robot.dt", r.dt, "[s]")?;
+        six("robot.start_joints_deg", &r.start_joints_deg)?;
+        if let Some(q) = &r.start_joints_deg {
+            let chain = self.robot();
+            for (i, (v, l)) in q.iter().zip(&chain.limits).enumerate() {
+                let (lo, hi) = (l.lower.to_degrees(), l.upper.to_degrees());
+                if !(*v >= lo && *v <= hi) {
+                    return fail(
+                        &format!("robot.start_joints_deg[{i}]"),
+                        format!("{v} is outside the joint limits [{lo}, {hi}] [deg]"),
+                    );
+                }
+            }
+        }
 
         // Gel.
         let g = &self.gel;
