@@ -47,6 +47,9 @@ use crate::reduce::BaseElimination;
 use core::fmt;
 use nalgebra::{Matrix3, Matrix4, SMatrix, SVector, Vector3, Vector4};
 
+/// Sweeps after which a reduced solve that has not converged is polished on its active set.
+const POLISH_AFTER: u32 = 60;
+
 /// How the 6 Jacobian columns are obtained.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum JacobianMode {
@@ -561,8 +564,12 @@ impl<const M: usize> Controller<M> {
         } else {
             &mut self.lr_work
         };
-        let rep = if n > 0 {
-            self.gs.solve(&self.red.w, &self.red.delta, lr, &gs)
+        let first = GsParams {
+            max_iterations: gs.max_iterations.min(POLISH_AFTER),
+            ..gs
+        };
+        let mut rep = if n > 0 {
+            self.gs.solve(&self.red.w, &self.red.delta, lr, &first)
         } else {
             SolveReport {
                 converged: true,
@@ -570,10 +577,40 @@ impl<const M: usize> Controller<M> {
             }
         };
         let (lr, full) = if into_base {
-            (&self.lr_base, &mut self.lambda_base)
+            (&mut self.lr_base, &mut self.lambda_base)
         } else {
-            (&self.lr_work, &mut self.lambda_work)
+            (&mut self.lr_work, &mut self.lambda_work)
         };
+        if !rep.converged {
+            // Slow convergence (sliding points coupled through the stiff needle: rows close to
+            // parallel): one Newton step on the active set of the current iterate — stick rows
+            // bilateral, slipping axial rows tied to their bound — on the full problem, then
+            // Gauss-Seidel confirms (and repairs any status the step got wrong).
+            self.red.expand(frame, &d, lr, full);
+            if self.params.active_set && self.gs_full.prepare_frame(frame).is_ok() {
+                self.delta[..6].copy_from_slice(&d);
+                let mut trial = *full;
+                if self
+                    .gs_full
+                    .factor_active_set(&frame.w, full, &mut self.set)
+                    && self
+                        .gs_full
+                        .refine_on_active_set(&frame.w, &self.delta, &mut trial, &mut self.set)
+                {
+                    lr[..n].copy_from_slice(&trial[6..6 + n]);
+                }
+                self.set_valid = false;
+            }
+            let left = GsParams {
+                max_iterations: gs.max_iterations.saturating_sub(rep.iterations),
+                ..gs
+            };
+            let r2 = self.gs.solve(&self.red.w, &self.red.delta, lr, &left);
+            rep = SolveReport {
+                iterations: rep.iterations + r2.iterations,
+                ..r2
+            };
+        }
         self.red.expand(frame, &d, lr, full);
         (b, rep)
     }

@@ -289,7 +289,8 @@ mod tests {
     #[test]
     fn smooth_normal_is_continuous_at_the_bottom_of_a_dimple() {
         // A square fan of four triangles around a centre node pushed down by 1: the face normals
-        // tilt by 45°, the interpolated vertex normal at the centre is the undeformed +z.
+        // tilt by 45°, the interpolated vertex normal at the centre is the undeformed +z (the
+        // query point just below the pushed node, as a tip pressing on it).
         let n = vec![
             Vector3::new(0.0, 0.0, -1.0),
             Vector3::new(1.0, 0.0, 0.0),
@@ -300,7 +301,7 @@ mod tests {
         let tris = vec![[0, 1, 2], [0, 2, 3], [0, 3, 4], [0, 4, 1]];
         let s = SurfaceProjector::new(&n, &tris);
         let hit = s
-            .project(&n, &tris, &Vector3::new(1e-9, 2e-9, -0.5), 10.0)
+            .project(&n, &tris, &Vector3::new(1e-9, 2e-9, -1.2), 10.0)
             .expect("hit");
         assert!(hit.normal.z < 0.75, "a steep face: {:?}", hit.normal);
         assert!((hit.smooth_normal - Vector3::z()).norm() < 1e-6, "{:?}", hit.smooth_normal);

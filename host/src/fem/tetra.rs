@@ -156,6 +156,17 @@ pub fn rotation_from_deformation_svd(f: &Matrix3<f64>) -> Matrix3<f64> {
     u0 * v0.transpose() + u1 * v1.transpose() + u2 * v2.transpose()
 }
 
+/// See [`CorotationalTetra::strain_stats`].
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct StrainStats {
+    /// Largest principal strain `|σ − 1|` over the elements (NaN-free meshes: finite) [-].
+    pub max_strain: f64,
+    /// The element where it occurs.
+    pub element: usize,
+    /// Elements with `det F ≤ 0`.
+    pub inverted: usize,
+}
+
 /// Rest data of the gel's corotational tetrahedra.
 ///
 /// `K0_e = V Bᵀ D B` is kept in factored form — the rest volume `V` and the four
@@ -298,6 +309,28 @@ impl CorotationalTetra {
         let x0 = x[t[0]];
         let ds = Matrix3::from_columns(&[x[t[1]] - x0, x[t[2]] - x0, x[t[3]] - x0]);
         ds * self.dm_inv[e]
+    }
+
+    /// Strain state of the mesh at positions `x`: the largest principal strain `|σᵢ(F) − 1|`
+    /// over the elements (σ the singular values of the deformation gradient), and how many
+    /// elements are inverted (`det F ≤ 0`).
+    pub fn strain_stats(&self, x: &[Vector3<f64>]) -> StrainStats {
+        let mut out = StrainStats::default();
+        for e in 0..self.tets.len() {
+            let f = self.deformation_gradient(e, x);
+            if !(f.determinant() > 0.0) {
+                out.inverted += 1;
+            }
+            let sv = f.singular_values();
+            for s in sv.iter() {
+                let strain = (s - 1.0).abs();
+                if !(strain <= out.max_strain) {
+                    out.max_strain = strain;
+                    out.element = e;
+                }
+            }
+        }
+        out
     }
 
     /// Updates every element rotation from the positions `x` [mm] (no-op for [`Kinematics::Linear`]).
