@@ -593,9 +593,12 @@ impl<const M: usize> Controller<M> {
                 if self
                     .gs_full
                     .factor_active_set(&frame.w, full, &mut self.set)
-                    && self
-                        .gs_full
-                        .refine_on_active_set(&frame.w, &self.delta, &mut trial, &mut self.set)
+                    && self.gs_full.refine_on_active_set(
+                        &frame.w,
+                        &self.delta,
+                        &mut trial,
+                        &mut self.set,
+                    )
                 {
                     lr[..n].copy_from_slice(&trial[6..6 + n]);
                 }

@@ -171,7 +171,9 @@ impl SurfaceProjector {
             }
         }
         for n in &mut vertex_normals {
-            *n = n.try_normalize(f64::MIN_POSITIVE).unwrap_or_else(Vector3::zeros);
+            *n = n
+                .try_normalize(f64::MIN_POSITIVE)
+                .unwrap_or_else(Vector3::zeros);
         }
         Self {
             bvh: Bvh::from_leaves(BvhBuildStrategy::Binned, &leaves),
@@ -304,7 +306,11 @@ mod tests {
             .project(&n, &tris, &Vector3::new(1e-9, 2e-9, -1.2), 10.0)
             .expect("hit");
         assert!(hit.normal.z < 0.75, "a steep face: {:?}", hit.normal);
-        assert!((hit.smooth_normal - Vector3::z()).norm() < 1e-6, "{:?}", hit.smooth_normal);
+        assert!(
+            (hit.smooth_normal - Vector3::z()).norm() < 1e-6,
+            "{:?}",
+            hit.smooth_normal
+        );
         // Between vertices the smooth normal is the interpolation, still unit and outward.
         let mid = s
             .project(&n, &tris, &Vector3::new(0.4, 0.4, 0.5), 10.0)

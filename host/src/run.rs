@@ -84,7 +84,10 @@ pub struct Timing {
 
 /// Steps whose solver report carries `flag`.
 fn count_flag(reports: &[StepReport], flag: u32) -> usize {
-    reports.iter().filter(|r| r.solver.flags & flag != 0).count()
+    reports
+        .iter()
+        .filter(|r| r.solver.flags & flag != 0)
+        .count()
 }
 
 fn timing(mut v: Vec<f64>) -> Timing {

@@ -1127,7 +1127,8 @@ impl<G: GelBody, N: NeedleBody> World<G, N> {
         Ok(())
     }
 
-    /// Largest lateral violation of the sliding points after the step [mm].
+    /// Largest lateral violation of the sliding points after the step (distance across the
+    /// shaft) [mm].
     fn residual(&self) -> f64 {
         let nodes = self.needle.nodes();
         self.sliding
@@ -1136,7 +1137,12 @@ impl<G: GelBody, N: NeedleBody> World<G, N> {
                 let g = s.at.position(self.gel.nodes(), self.gel.tets());
                 let (e, f) = closest_on_polyline(nodes, &g);
                 let p = nodes[e] * (1.0 - f) + nodes[e + 1] * f;
-                (p - g).norm()
+                // Lateral: across the segment's axis. A point the tip is being withdrawn past
+                // (kept until it is a margin beyond the tip) is measured against the shaft's
+                // line, not against the tip itself.
+                let t = (nodes[e + 1] - nodes[e]).normalize();
+                let d = g - p;
+                (d - t * d.dot(&t)).norm()
             })
             .fold(0.0, f64::max)
     }
