@@ -213,3 +213,37 @@ fn overrides_set_dotted_fields_and_are_validated() {
         .unwrap_err();
     assert!(e.reason.contains("not a TOML value"), "{e}");
 }
+
+#[test]
+fn start_joints_and_insertion_mode_are_checked_and_used() {
+    let e = err_of(&format!(
+        "{MINIMAL}\n[robot]\nstart_joints_deg = [0.0, 60.0, 120.0, 0.0, 95.0, 0.0]\n"
+    ));
+    let msg = e.to_string();
+    assert!(
+        msg.contains("robot.start_joints_deg[4]") && msg.contains("outside the joint limits"),
+        "{msg}"
+    );
+    let e = err_of(&format!(
+        "{MINIMAL}\n[robot]\nstart_joints_deg = [0.0, 60.0]\n"
+    ));
+    assert!(e.to_string().contains("needs 6 values"), "{e}");
+    let e = err_of(&format!("{MINIMAL}\n[insertion]\nmode = \"sideways\"\n"));
+    assert!(e.to_string().contains("insertion.mode"), "{e}");
+
+    let s = Scene::from_toml_str(
+        &format!("{MINIMAL}\n[insertion]\nmode = \"back-and-forth\"\nadvance_per_step = 1.0\n"),
+        "ok.toml",
+    )
+    .expect("valid");
+    let total = 10.0;
+    assert_eq!(s.insertion.default_steps(total), 20);
+    let c: Vec<f64> = (0..22).map(|k| s.insertion.target_arc(total, k)).collect();
+    assert_eq!(c[8], 9.0);
+    assert_eq!(c[9], 10.0);
+    assert_eq!(c[10], 9.0);
+    assert_eq!(c[19], 0.0);
+    assert_eq!(c[20], 1.0);
+    let insert = Scene::from_toml_str(MINIMAL, "ok.toml").expect("valid");
+    assert_eq!(insert.insertion.target_arc(total, 500), total);
+}
