@@ -152,11 +152,24 @@ fn strain_now(sim: &Simulation) -> needle_host::fem::tetra::StrainStats {
         .strain_stats(sim.gel.model.positions())
 }
 
-#[test]
-#[ignore = "hard case (release, ~30 s): run with --include-ignored"]
-fn case2_large_lateral_deformation_stays_finite_and_recovers() {
-    // 20 mm sideways over 50 mm of depth, then withdrawn along the same path.
-    let scene = with("lateral.toml", &[("insertion.mode", "\"back-and-forth\"")]);
+/// What the lateral case measured.
+struct Lateral {
+    e_mean: f64,
+    e_max: f64,
+    strain: f64,
+    inverted: usize,
+}
+
+/// The 20 mm lateral path in and out again (`young` in MPa): strain sampled every 5 steps;
+/// once withdrawn, the gel must be back at rest with nothing inverted.
+fn lateral(young: &str) -> Lateral {
+    let scene = with(
+        "lateral.toml",
+        &[
+            ("insertion.mode", "\"back-and-forth\""),
+            ("gel.young_modulus", young),
+        ],
+    );
     let mut sim = build(&scene).expect("scene builds");
     let total = sim.path.total_length();
     let steps = scene.insertion.default_steps(total);
@@ -172,7 +185,7 @@ fn case2_large_lateral_deformation_stays_finite_and_recovers() {
             "cap hit at step {k}"
         );
         residual = residual.max(rep.residual);
-        if rep.inserted && c > 2.0 * scene.path.approach && k < steps / 2 {
+        if rep.inserted && k < steps / 2 {
             e_in += rep.error;
             n_in += 1;
             e_max = e_max.max(rep.error);
@@ -184,7 +197,6 @@ fn case2_large_lateral_deformation_stays_finite_and_recovers() {
             inverted_max = inverted_max.max(st.inverted);
         }
     }
-    // Withdrawn (the tip back in the air): the gel is back at rest, nothing inverted.
     let end = strain_now(&sim);
     let rest_gap = sim
         .gel
@@ -194,23 +206,41 @@ fn case2_large_lateral_deformation_stays_finite_and_recovers() {
         .zip(&sim.gel.model.mesh().nodes)
         .map(|(x, x0)| (x - x0).norm())
         .fold(0.0, f64::max);
+    let e_mean = e_in / n_in.max(1) as f64;
     eprintln!(
-        "lateral 20 mm: steps {steps}, e_mean {:.3} mm, e_max {e_max:.3} mm on the way in, largest principal strain {:.1} %, \
-         most inverted elements {inverted_max}, residual max {residual:.2e} mm; withdrawn: strain {:.2e}, inverted {}, \
-         largest node displacement from rest {rest_gap:.2e} mm",
-        e_in / n_in.max(1) as f64,
+        "lateral 20 mm, E = {young} MPa: steps {steps}, e_mean {e_mean:.3} mm, e_max {e_max:.3} mm on the way in, \
+         largest principal strain {:.1} %, most inverted elements {inverted_max}, residual max {residual:.2e} mm; \
+         withdrawn: strain {:.2e}, inverted {}, largest node displacement from rest {rest_gap:.2e} mm",
         100.0 * worst,
         end.max_strain,
         end.inverted
     );
-    assert!(worst > 0.3, "strain only {worst}");
     assert!(residual <= RESIDUAL_BOUND, "residual {residual} mm");
-    assert!(e_in / (n_in.max(1) as f64) <= SIMPLE_MEAN && e_max <= SIMPLE_MAX);
-    assert_eq!(end.inverted, 0);
+    assert_eq!(end.inverted, 0, "inverted elements left after withdrawal");
     assert!(
         rest_gap < 0.05,
         "gel {rest_gap} mm from rest after withdrawal"
     );
+    Lateral {
+        e_mean,
+        e_max,
+        strain: worst,
+        inverted: inverted_max,
+    }
+}
+
+#[test]
+#[ignore = "hard case (release, 2 × ~15 s): run with --include-ignored"]
+fn case2_large_lateral_deformation_stays_finite_and_recovers() {
+    // The benchmark gel: strains far above 30 %, tracking within the simple bound.
+    let l = lateral("0.02");
+    assert!(l.strain > 0.3, "strain only {}", l.strain);
+    assert!(l.e_mean <= SIMPLE_MEAN && l.e_max <= SIMPLE_MAX);
+    // A 2 kPa gel: elements invert on the way in, stay finite, and recover on the way out.
+    let soft = lateral("0.002");
+    assert!(soft.strain > 1.0, "strain only {}", soft.strain);
+    assert!(soft.inverted > 0, "no element inverted");
+    assert!(soft.e_mean <= COMPLEX_MEAN && soft.e_max <= COMPLEX_MAX);
 }
 
 #[test]

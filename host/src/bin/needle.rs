@@ -235,6 +235,11 @@ fn print_summary(s: &RunSummary, json: bool) -> ExitCode {
             "Gauss-Seidel sweeps per step: mean {:.1}, max {} ({} steps hit the cap)",
             s.gs_iterations_mean, s.gs_iterations_max, s.gs_not_converged_steps
         );
+        println!(
+            "gel: largest principal strain {:.1} %, at most {} inverted elements",
+            100.0 * s.max_strain,
+            s.max_inverted_elements
+        );
         if s.unreachable_steps + s.limit_steps > 0 {
             println!(
                 "target unreachable in {} steps, a joint at its limit in {} steps",
