@@ -145,6 +145,30 @@ fn case1_stiffness_contrast_2kpa_gel_tracks_within_the_complex_bound() {
     within("soft gel E = 2 kPa", &r, COMPLEX_MEAN, COMPLEX_MAX);
 }
 
+/// Step `k` of the scene's insertion schedule, checked: finite, no solve at the cap.
+fn checked_step(sim: &mut Simulation, scene: &Scene, total: f64, k: usize) -> StepReport {
+    let c = scene.insertion.target_arc(total, k);
+    let rep = sim.step_with(c, None).expect("step");
+    assert!(rep.error.is_finite() && rep.tip.iter().all(|v| v.is_finite()));
+    assert_eq!(
+        rep.solver.flags & StatusFlags::NOT_CONVERGED,
+        0,
+        "cap hit at step {k}"
+    );
+    rep
+}
+
+/// Largest distance of a gel node from its rest position [mm].
+fn rest_gap(sim: &Simulation) -> f64 {
+    sim.gel
+        .model
+        .positions()
+        .iter()
+        .zip(&sim.gel.model.mesh().nodes)
+        .map(|(x, x0)| (x - x0).norm())
+        .fold(0.0, f64::max)
+}
+
 fn strain_now(sim: &Simulation) -> needle_host::fem::tetra::StrainStats {
     sim.gel
         .model
@@ -176,14 +200,7 @@ fn lateral(young: &str) -> Lateral {
     let (mut worst, mut inverted_max, mut residual) = (0.0f64, 0usize, 0.0f64);
     let (mut e_in, mut n_in, mut e_max) = (0.0, 0usize, 0.0f64);
     for k in 0..steps {
-        let c = scene.insertion.target_arc(total, k);
-        let rep = sim.step_with(c, None).expect("step");
-        assert!(rep.error.is_finite() && rep.tip.iter().all(|v| v.is_finite()));
-        assert_eq!(
-            rep.solver.flags & StatusFlags::NOT_CONVERGED,
-            0,
-            "cap hit at step {k}"
-        );
+        let rep = checked_step(&mut sim, &scene, total, k);
         residual = residual.max(rep.residual);
         if rep.inserted && k < steps / 2 {
             e_in += rep.error;
@@ -198,14 +215,7 @@ fn lateral(young: &str) -> Lateral {
         }
     }
     let end = strain_now(&sim);
-    let rest_gap = sim
-        .gel
-        .model
-        .positions()
-        .iter()
-        .zip(&sim.gel.model.mesh().nodes)
-        .map(|(x, x0)| (x - x0).norm())
-        .fold(0.0, f64::max);
+    let rest_gap = rest_gap(&sim);
     let e_mean = e_in / n_in.max(1) as f64;
     eprintln!(
         "lateral 20 mm, E = {young} MPa: steps {steps}, e_mean {e_mean:.3} mm, e_max {e_max:.3} mm on the way in, \
@@ -423,20 +433,12 @@ fn case8_twenty_thousand_steps_back_and_forth_leave_the_gel_at_rest() {
     let total = sim.path.total_length();
     let period = scene.insertion.default_steps(total);
     let steps = 20_000;
-    let rest = sim.gel.model.mesh().nodes.clone();
     let mut checks = Vec::new();
     let mut cycle_errors: Vec<(f64, usize)> = Vec::new();
     let mut punctures = 0;
     let mut residual = 0.0f64;
     for k in 0..steps {
-        let c = scene.insertion.target_arc(total, k);
-        let rep = sim.step_with(c, None).expect("step");
-        assert!(rep.error.is_finite() && rep.tip.iter().all(|v| v.is_finite()));
-        assert_eq!(
-            rep.solver.flags & StatusFlags::NOT_CONVERGED,
-            0,
-            "cap hit at step {k}"
-        );
+        let rep = checked_step(&mut sim, &scene, total, k);
         residual = residual.max(rep.residual);
         punctures += usize::from(rep.punctured_now);
         let cycle = k / period;
@@ -453,15 +455,7 @@ fn case8_twenty_thousand_steps_back_and_forth_leave_the_gel_at_rest() {
                 !sim.punctured && sim.sliding.is_empty(),
                 "step {k}: still inserted"
             );
-            let gap = sim
-                .gel
-                .model
-                .positions()
-                .iter()
-                .zip(&rest)
-                .map(|(x, x0)| (x - x0).norm())
-                .fold(0.0, f64::max);
-            checks.push(gap);
+            checks.push(rest_gap(&sim));
         }
     }
     let means: Vec<f64> = cycle_errors
