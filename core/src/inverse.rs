@@ -684,25 +684,9 @@ impl<const M: usize> Controller<M> {
         frame: &ComplianceFrame<M>,
         cmd: &mut Command<M>,
     ) -> Result<SolverReport, StepError> {
-        self.check_params()?;
-        // 1. validate + factor the diagonal blocks once for the 8 solves (of the reduced
-        //    problem when the base rows are eliminated).
-        self.gs.prepare_frame(frame)?;
-        if self.params.eliminate_base {
-            self.prepare_reduced(frame)?;
-        }
-        let m = frame.rows();
+        // 1. validate + factor the diagonal blocks once for the 8 solves; 2. warm start.
+        let m = self.begin(frame)?;
         let p = self.params;
-        self.delta[..m].copy_from_slice(&frame.delta_free[..m]);
-
-        // 2. solve at q.
-        if p.warm_start && self.prev_m > 0 {
-            let n = self.prev_m.min(m);
-            self.lambda_base[..n].copy_from_slice(&self.lambda_prev[..n]);
-            self.lambda_base[n..m].fill(0.0);
-        } else {
-            self.lambda_base[..m].fill(0.0);
-        }
         let q = frame.q;
         let mut report = SolverReport::default();
         let (b0, rep) = self.solve_base(frame, &q);
@@ -868,17 +852,84 @@ impl<const M: usize> Controller<M> {
                 stage: "final solve",
             });
         }
+        self.answer(frame, &q_new, report, cmd);
+        Ok(report)
+    }
+
+    /// One constraint solve at the given joints, without the inverse update: the open-loop step
+    /// of a replayed trajectory. The same preparation, warm start and solver (base elimination,
+    /// active-set polish) as the first solve of [`Self::step`]; the command carries `q` and λ.
+    ///
+    /// # Errors
+    /// As [`Self::step`]: an invalid frame or parameters, a non-finite result.
+    pub fn solve_open_loop(
+        &mut self,
+        frame: &ComplianceFrame<M>,
+        q: &[f64; JOINTS],
+        cmd: &mut Command<M>,
+    ) -> Result<SolverReport, StepError> {
+        let m = self.begin(frame)?;
+        let (_, rep) = self.solve_base(frame, q);
+        if !self.lambda_base[..m].iter().all(|x| x.is_finite()) {
+            return Err(StepError::NonFinite {
+                stage: "open-loop solve",
+            });
+        }
+        self.lambda_work[..m].copy_from_slice(&self.lambda_base[..m]);
+        let report = SolverReport {
+            iterations: rep.iterations,
+            solves: 1,
+            flags: if rep.converged {
+                0
+            } else {
+                StatusFlags::NOT_CONVERGED
+            },
+            final_iterations: rep.iterations,
+            final_residual: rep.residual,
+            ..SolverReport::default()
+        };
+        self.answer(frame, q, report, cmd);
+        Ok(report)
+    }
+
+    /// Validates the parameters and the frame, factors the diagonal blocks (of the reduced
+    /// problem when the base rows are eliminated) and warm-starts `lambda_base`. Returns `m`.
+    fn begin(&mut self, frame: &ComplianceFrame<M>) -> Result<usize, StepError> {
+        self.check_params()?;
+        self.gs.prepare_frame(frame)?;
+        if self.params.eliminate_base {
+            self.prepare_reduced(frame)?;
+        }
+        let m = frame.rows();
+        self.delta[..m].copy_from_slice(&frame.delta_free[..m]);
+        if self.params.warm_start && self.prev_m > 0 {
+            let n = self.prev_m.min(m);
+            self.lambda_base[..n].copy_from_slice(&self.lambda_prev[..n]);
+            self.lambda_base[n..m].fill(0.0);
+        } else {
+            self.lambda_base[..m].fill(0.0);
+        }
+        Ok(m)
+    }
+
+    /// Keeps λ (`lambda_work`) for the next warm start and writes the command.
+    fn answer(
+        &mut self,
+        frame: &ComplianceFrame<M>,
+        q: &[f64; JOINTS],
+        report: SolverReport,
+        cmd: &mut Command<M>,
+    ) {
+        let m = frame.rows();
         self.lambda_prev[..m].copy_from_slice(&self.lambda_work[..m]);
         self.prev_m = m;
-
         cmd.version = VERSION;
         cmd.m = frame.m;
         cmd.frame_sequence = frame.sequence;
-        cmd.q = q_new;
+        cmd.q = *q;
         cmd.lambda[..m].copy_from_slice(&self.lambda_work[..m]);
         cmd.lambda[m..].fill(0.0);
         cmd.report = report;
-        Ok(report)
     }
 }
 

@@ -27,14 +27,10 @@ use crate::constraints::{
 use crate::proximity::{Embedded, SurfaceProjector, TetLocator};
 use crate::scene::{SampledPath, Scene};
 use nalgebra::{Matrix3, Rotation3, Vector3};
-use needle_core::constraint::BlockGs;
 use needle_core::inverse::base_violation;
 use needle_core::inverse::{Controller, InverseParams, StepError};
 use needle_core::kinematics::{DhChain, Pose};
-use needle_core::payload::{
-    Command, ComplianceFrame, GroupKind, JOINTS, SolverReport, StatusFlags,
-};
-use needle_core::reduce::BaseElimination;
+use needle_core::payload::{Command, ComplianceFrame, GroupKind, JOINTS, SolverReport};
 use std::fmt;
 use std::time::Instant;
 
@@ -151,13 +147,6 @@ struct Pending {
     times: StageTimes,
 }
 
-/// Scratch of the open-loop mode (a single solve at given joints).
-struct OpenLoop {
-    gs: BlockGs<ROWS>,
-    red: BaseElimination<ROWS>,
-    lambda: [f64; ROWS],
-}
-
 /// Per-stage wall times of one step [ms].
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct StageTimes {
@@ -258,7 +247,6 @@ pub struct World<G: GelBody, N: NeedleBody> {
     r_off: Matrix3<f64>,
     frame: Box<ComplianceFrame<ROWS>>,
     command: Box<Command<ROWS>>,
-    open_loop: Box<OpenLoop>,
     pending: Pending,
     set: ConstraintSet,
     gel_dx: Vec<f64>,
@@ -406,11 +394,6 @@ impl<G: GelBody, N: NeedleBody> World<G, N> {
             frame: boxed_frame(),
             command: boxed_command(),
             pending: Pending::default(),
-            open_loop: Box::new(OpenLoop {
-                gs: BlockGs::new(),
-                red: BaseElimination::new(),
-                lambda: [0.0; ROWS],
-            }),
             set: ConstraintSet::default(),
             gel_dx: vec![0.0; ng],
             needle_dx: vec![0.0; nn],
@@ -528,7 +511,9 @@ impl<G: GelBody, N: NeedleBody> World<G, N> {
         let t3 = Instant::now();
         let report = match joints {
             None => self.controller.step(&self.frame, &mut self.command)?,
-            Some(q) => self.solve_open_loop(q)?,
+            Some(q) => self
+                .controller
+                .solve_open_loop(&self.frame, &q, &mut self.command)?,
         };
         self.pending.times.sc = ms(t3);
         self.finish(report)
@@ -731,61 +716,6 @@ impl<G: GelBody, N: NeedleBody> World<G, N> {
         };
         self.steps += 1;
         Ok(rep)
-    }
-
-    /// Open loop: one constraint solve at the given joints (warm start: the previous λ), written
-    /// into the command like the core's inverse step would.
-    fn solve_open_loop(&mut self, q: [f64; JOINTS]) -> Result<SolverReport, SimError> {
-        let ol = &mut *self.open_loop;
-        let f = &*self.frame;
-        f.validate()
-            .map_err(|e| SimError::Core(StepError::InvalidFrame(e)))?;
-        let m = f.rows();
-        let db = base_violation(&self.chain.tool_pose(&q), &f.p_free, &f.r_free);
-        // The base rows are eliminated exactly, as in the core's inverse step (see
-        // `needle_core::reduce`): Gauss-Seidel on the other rows with the needle clamped at its base.
-        if !ol.red.prepare(f) {
-            return Err(SimError::NonFinite("base block of W"));
-        }
-        let n = ol.red.rows();
-        ol.red.reduce_delta(f, &db);
-        // Warm start from the previous λ of the same rows.
-        ol.lambda[..n].copy_from_slice(&self.command.lambda[6..6 + n]);
-        ol.lambda[n..].fill(0.0);
-        let rep = if n > 0 {
-            ol.gs
-                .prepare(&ol.red.w, n, ol.red.groups())
-                .map_err(|e| SimError::Core(StepError::InvalidFrame(e)))?;
-            ol.gs.solve(
-                &ol.red.w,
-                &ol.red.delta,
-                &mut ol.lambda,
-                &self.controller.params.gs,
-            )
-        } else {
-            needle_core::constraint::SolveReport {
-                converged: true,
-                ..Default::default()
-            }
-        };
-        ol.red.expand(f, &db, &ol.lambda, &mut self.command.lambda);
-        self.command.q = q;
-        self.command.m = m as u32;
-        self.command.frame_sequence = f.sequence;
-        let report = SolverReport {
-            iterations: rep.iterations,
-            solves: 1,
-            flags: if rep.converged {
-                0
-            } else {
-                StatusFlags::NOT_CONVERGED
-            },
-            final_iterations: rep.iterations,
-            final_residual: rep.residual,
-            ..SolverReport::default()
-        };
-        self.command.report = report;
-        Ok(report)
     }
 
     /// Builds `self.set` from the current and free-motion positions.
@@ -1112,7 +1042,7 @@ impl<G: GelBody, N: NeedleBody> World<G, N> {
                 // Sliding points no closer than the element size: the gel is linear in an element,
                 // so two points closer than an element are nearly the same constraint. With a stiff
                 // needle their rows are almost parallel: Gauss-Seidel stalls (d_n = 1 mm on a
-                // 5 mm mesh: every step at the sweep cap), and the pair clamps the shaft like a
+                // 1500-node box: every step at the sweep cap), and the pair clamps the shaft like a
                 // lever — large opposite lateral forces whose μ_n-bounds lock it, so the shaft
                 // drags the gel instead of sliding (the tip stuck at 4–6 mm depth, 40–75 N of
                 // sliding force). The spacing actually used is `max(d_n, h)`, `h` the rest size of
@@ -1188,7 +1118,7 @@ const CONTACT_DISTANCE: f64 = 5.0;
 const TANGENT_STEP: f64 = 1.0;
 
 /// Size of a tetrahedron: the edge of the regular tetrahedron of the same volume,
-/// `(6√2 V)^(1/3)` [mm] (a cube of side a split into 6 tetrahedra: 1.23 a).
+/// `(6√2 V)^(1/3)` [mm] (a cube of side a split into 6 tetrahedra: 2^(1/6) a ≈ 1.12 a).
 pub fn element_size(nodes: &[Vector3<f64>], t: &[usize; 4]) -> f64 {
     let v = (nodes[t[1]] - nodes[t[0]])
         .cross(&(nodes[t[2]] - nodes[t[0]]))
