@@ -20,8 +20,8 @@
 
 use crate::payload::{CommandHeader, CommandKind, FrameHeader, setup_fingerprint};
 use crate::shm::{
-    BridgeConfig, CommandPublisher, FrameSubscriber, Ipc, cleanup_dead_nodes, command_service,
-    create_node, frame_service, ipc_err, pause,
+    BridgeConfig, CommandPublisher, FrameSubscriber, Ipc, cleanup_dead_nodes,
+    command_service_counting, create_node, frame_service_counting, ipc_err, pause,
 };
 use crate::transport::TransportError;
 use core::fmt;
@@ -129,6 +129,8 @@ pub struct ControllerStats {
     pub sessions: u64,
     /// Dead nodes whose resources were removed.
     pub dead_nodes_cleaned: u64,
+    /// Services left half-created by a killed process, removed and created again at start.
+    pub hung_services_removed: u64,
     /// The last rejection.
     pub last_rejection: Option<Rejection>,
 }
@@ -137,7 +139,7 @@ impl fmt::Display for ControllerStats {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         write!(
             f,
-            "frames received {}, solved {}, rejected {} (invalid {}, sequence {}, set-up {}), skipped {}, repeated answers {}, step errors {}; commands sent {} (holds {} in {} hold events); host sessions {}; dead nodes cleaned {}",
+            "frames received {}, solved {}, rejected {} (invalid {}, sequence {}, set-up {}), skipped {}, repeated answers {}, step errors {}; commands sent {} (holds {} in {} hold events); host sessions {}; dead nodes cleaned {}, hung services removed {}",
             self.frames_received,
             self.frames_solved,
             self.frames_rejected,
@@ -151,7 +153,8 @@ impl fmt::Display for ControllerStats {
             self.hold_commands,
             self.hold_events,
             self.sessions,
-            self.dead_nodes_cleaned
+            self.dead_nodes_cleaned,
+            self.hung_services_removed
         )
     }
 }
@@ -199,12 +202,13 @@ impl<const M: usize> ControllerNode<M> {
     ) -> Result<Self, TransportError> {
         let node = create_node("needle-controller", &opts.bridge)?;
         let dead = cleanup_dead_nodes(&node);
-        let frames = frame_service::<M>(&node, &opts.bridge)?
+        let mut hung = 0;
+        let frames = frame_service_counting::<M>(&node, &opts.bridge, &mut hung)?
             .subscriber_builder()
             .create()
             .map_err(dbg)
             .map_err(ipc_err("create frame subscriber"))?;
-        let commands = command_service::<M>(&node, &opts.bridge)?
+        let commands = command_service_counting::<M>(&node, &opts.bridge, &mut hung)?
             .publisher_builder()
             .create()
             .map_err(dbg)
@@ -234,6 +238,7 @@ impl<const M: usize> ControllerNode<M> {
             last_cleanup: Instant::now(),
             stats: ControllerStats {
                 dead_nodes_cleaned: dead,
+                hung_services_removed: hung,
                 ..ControllerStats::default()
             },
         })

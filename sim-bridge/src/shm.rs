@@ -14,7 +14,9 @@
 //!
 //! Stale resources: a process killed without cleaning up leaves its node behind. Every side
 //! starts by removing the resources of dead nodes ([`cleanup_dead_nodes`], iceoryx2's node list
-//! with `NodeState::Dead`), and the controller does it again whenever it loses its host.
+//! with `NodeState::Dead`), and the controller does it again whenever it loses its host. A
+//! process killed while it was creating a service leaves that service half-created; the next
+//! open removes it and creates it again (`open_recovering`).
 
 use crate::payload::{
     CommandHeader, CommandKind, CommandPayload, FrameHeader, FramePayload, copy_used,
@@ -24,6 +26,9 @@ use core::time::Duration;
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
+use iceoryx2::service::builder::publish_subscribe::{
+    PublishSubscribeCreateError, PublishSubscribeOpenError, PublishSubscribeOpenOrCreateError,
+};
 use iceoryx2::service::port_factory::publish_subscribe::PortFactory;
 use needle_core::payload::{COMMAND_TYPE_NAME, Command, ComplianceFrame, FRAME_TYPE_NAME};
 use std::time::Instant;
@@ -139,7 +144,8 @@ pub fn cleanup_dead_nodes(node: &Node<Ipc>) -> u64 {
 
 /// Opens or creates the frame service of `cfg` (same settings on both sides: 2 publishers so a
 /// restarted host can join before the dead one is cleaned, 2 subscribers, buffer of 2 with
-/// overwrite of the oldest — the controller only ever wants the newest frame).
+/// overwrite of the oldest — the controller only ever wants the newest frame). Recovers from a
+/// service left half-created by a killed process (see [`open_recovering`]).
 ///
 /// # Errors
 /// [`TransportError::Ipc`], e.g. when the service exists with an incompatible payload (another
@@ -148,21 +154,29 @@ pub fn frame_service<const M: usize>(
     node: &Node<Ipc>,
     cfg: &BridgeConfig,
 ) -> Result<PortFactory<Ipc, FramePayload<M>, FrameHeader>, TransportError> {
+    frame_service_counting(node, cfg, &mut 0)
+}
+
+pub(crate) fn frame_service_counting<const M: usize>(
+    node: &Node<Ipc>,
+    cfg: &BridgeConfig,
+    removed: &mut u64,
+) -> Result<PortFactory<Ipc, FramePayload<M>, FrameHeader>, TransportError> {
     let name = ServiceName::new(&cfg.frame_service_name())
         .map_err(dbg)
         .map_err(ipc_err("frame service name"))?;
-    node.service_builder(&name)
-        .publish_subscribe::<FramePayload<M>>()
-        .user_header::<FrameHeader>()
-        .max_publishers(2)
-        .max_subscribers(2)
-        .history_size(0)
-        .subscriber_max_buffer_size(2)
-        .subscriber_max_borrowed_samples(2)
-        .enable_safe_overflow(true)
-        .open_or_create()
-        .map_err(dbg)
-        .map_err(ipc_err("open frame service"))
+    open_recovering(node, &name, "open frame service", removed, || {
+        node.service_builder(&name)
+            .publish_subscribe::<FramePayload<M>>()
+            .user_header::<FrameHeader>()
+            .max_publishers(2)
+            .max_subscribers(2)
+            .history_size(0)
+            .subscriber_max_buffer_size(2)
+            .subscriber_max_borrowed_samples(2)
+            .enable_safe_overflow(true)
+            .open_or_create()
+    })
 }
 
 /// Opens or creates the command service of `cfg` (buffer of 8: hold commands at the
@@ -174,21 +188,143 @@ pub fn command_service<const M: usize>(
     node: &Node<Ipc>,
     cfg: &BridgeConfig,
 ) -> Result<PortFactory<Ipc, CommandPayload<M>, CommandHeader>, TransportError> {
+    command_service_counting(node, cfg, &mut 0)
+}
+
+pub(crate) fn command_service_counting<const M: usize>(
+    node: &Node<Ipc>,
+    cfg: &BridgeConfig,
+    removed: &mut u64,
+) -> Result<PortFactory<Ipc, CommandPayload<M>, CommandHeader>, TransportError> {
     let name = ServiceName::new(&cfg.command_service_name())
         .map_err(dbg)
         .map_err(ipc_err("command service name"))?;
-    node.service_builder(&name)
-        .publish_subscribe::<CommandPayload<M>>()
-        .user_header::<CommandHeader>()
-        .max_publishers(2)
-        .max_subscribers(2)
-        .history_size(0)
-        .subscriber_max_buffer_size(8)
-        .subscriber_max_borrowed_samples(2)
-        .enable_safe_overflow(true)
-        .open_or_create()
-        .map_err(dbg)
-        .map_err(ipc_err("open command service"))
+    open_recovering(node, &name, "open command service", removed, || {
+        node.service_builder(&name)
+            .publish_subscribe::<CommandPayload<M>>()
+            .user_header::<CommandHeader>()
+            .max_publishers(2)
+            .max_subscribers(2)
+            .history_size(0)
+            .subscriber_max_buffer_size(8)
+            .subscriber_max_borrowed_samples(2)
+            .enable_safe_overflow(true)
+            .open_or_create()
+    })
+}
+
+/// How often a transient open failure (another process cleaning a dead node's share of the
+/// same service at this moment) is retried, 10 ms apart.
+const TRANSIENT_RETRIES: u32 = 20;
+
+/// Runs `open` (an `open_or_create`) and recovers from the two ways a killed process can leave
+/// a service unusable:
+///
+/// - **Hangs in creation**: the process was killed between writing the service's static config
+///   and finalising it. iceoryx2 waits `creation_timeout` (1 s) for the creator and then gives
+///   up with `HangsInCreation` — for ever, since nobody will finalise it. A creator that is alive
+///   finishes in microseconds, and no process can have opened a service whose static config is
+///   not final, so after that wait the service is removed ([`remove_unfinalised_service`]) —
+///   once — and created again. Counted in `removed`.
+/// - **Transient states** while another process removes a dead node's share of the service at
+///   the same moment (`ServiceInCorruptedState`, `IsMarkedForDestruction`, `SystemInFlux`,
+///   `DoesNotExist` on open): retried up to [`TRANSIENT_RETRIES`] times.
+fn open_recovering<T>(
+    node: &Node<Ipc>,
+    name: &ServiceName,
+    what: &'static str,
+    removed: &mut u64,
+    mut open: impl FnMut() -> Result<T, PublishSubscribeOpenOrCreateError>,
+) -> Result<T, TransportError> {
+    use PublishSubscribeCreateError as C;
+    use PublishSubscribeOpenError as O;
+    use PublishSubscribeOpenOrCreateError as E;
+    let mut forced = false;
+    let mut retries = 0;
+    loop {
+        let e = match open() {
+            Ok(service) => return Ok(service),
+            Err(e) => e,
+        };
+        let hangs = matches!(
+            e,
+            E::PublishSubscribeOpenError(O::HangsInCreation)
+                | E::PublishSubscribeCreateError(C::HangsInCreation)
+        );
+        let transient = matches!(
+            e,
+            E::SystemInFlux
+                | E::PublishSubscribeOpenError(
+                    O::ServiceInCorruptedState | O::IsMarkedForDestruction | O::DoesNotExist
+                )
+                | E::PublishSubscribeCreateError(C::IsBeingCreatedByAnotherInstance)
+        );
+        if hangs && !forced {
+            forced = true;
+            cleanup_dead_nodes(node);
+            match remove_unfinalised_service(node, name) {
+                Ok(()) => *removed += 1,
+                Err(r) => {
+                    return Err(TransportError::Ipc {
+                        what,
+                        detail: format!(
+                            "{e:?}: the service \"{name}\" was left half-created by a killed process and could not be removed: {r}"
+                        ),
+                    });
+                }
+            }
+        } else if transient && retries < TRANSIENT_RETRIES {
+            retries += 1;
+            std::thread::sleep(Duration::from_millis(10));
+        } else {
+            return Err(TransportError::Ipc {
+                what,
+                detail: format!("{e:?}"),
+            });
+        }
+    }
+}
+
+/// Removes what a process killed while creating service `name` left: the service's static
+/// config file, still carrying its initial permissions (owner read-write; iceoryx2 makes it
+/// read-only once the content is final), and whatever else [`Node::force_remove_service`] finds.
+/// iceoryx2 0.10 treats an unfinalised static config as "no service" when removing
+/// (`read_static_service_config` returns `None`) but as "hangs in creation" when opening, so
+/// no public call removes it; the file is found by the same hash iceoryx2 names it with.
+///
+/// Call only after an open waited the whole creation timeout on this service.
+fn remove_unfinalised_service(node: &Node<Ipc>, name: &ServiceName) -> Result<(), String> {
+    use iceoryx2::service::service_hash::ServiceHash;
+    use std::os::unix::fs::PermissionsExt;
+    // SAFETY: only called when the service's static config stayed unfinalised for the whole
+    // creation timeout: its creator is dead (a live one finishes in microseconds) and no process
+    // can hold the service open (opening needs the final static config).
+    let forced = unsafe { node.force_remove_service(name, MessagingPattern::PublishSubscribe) }
+        .map_err(|e| format!("{e:?}"))?;
+    let global = &node.config().global;
+    let hash = ServiceHash::new::<<Ipc as iceoryx2::service::Service>::ServiceNameHasher>(
+        name,
+        MessagingPattern::PublishSubscribe,
+    );
+    let file = std::path::PathBuf::from(format!("{}", global.service_dir())).join(format!(
+        "{}{}{}",
+        global.prefix,
+        hash.as_str(),
+        global.service.static_config_storage_suffix
+    ));
+    match std::fs::metadata(&file) {
+        Ok(m) if m.is_file() && m.permissions().mode() & 0o777 == 0o600 => {
+            std::fs::remove_file(&file).map_err(|e| format!("{}: {e}", file.display()))
+        }
+        Ok(_) if forced => Ok(()),
+        Ok(m) => Err(format!(
+            "{}: not an unfinalised static config (mode {:o})",
+            file.display(),
+            m.permissions().mode() & 0o777
+        )),
+        Err(_) if forced => Ok(()),
+        Err(e) => Err(format!("{}: {e}", file.display())),
+    }
 }
 
 /// Counters of the host side.
@@ -206,6 +342,8 @@ pub struct HostStats {
     pub timeouts: u64,
     /// Dead nodes whose resources were removed at start.
     pub dead_nodes_cleaned: u64,
+    /// Services left half-created by a killed process, removed and created again at start.
+    pub hung_services_removed: u64,
 }
 
 /// The host's end: publishes frames in place and waits, lock-step, for the command answering
@@ -229,12 +367,13 @@ impl<const M: usize> SharedMemoryHost<M> {
     pub fn connect(cfg: &BridgeConfig, setup: u64) -> Result<Self, TransportError> {
         let node = create_node("needle-host", cfg)?;
         let dead_nodes_cleaned = cleanup_dead_nodes(&node);
-        let frames = frame_service::<M>(&node, cfg)?
+        let mut hung_services_removed = 0;
+        let frames = frame_service_counting::<M>(&node, cfg, &mut hung_services_removed)?
             .publisher_builder()
             .create()
             .map_err(dbg)
             .map_err(ipc_err("create frame publisher"))?;
-        let commands = command_service::<M>(&node, cfg)?
+        let commands = command_service_counting::<M>(&node, cfg, &mut hung_services_removed)?
             .subscriber_builder()
             .create()
             .map_err(dbg)
@@ -250,6 +389,7 @@ impl<const M: usize> SharedMemoryHost<M> {
             cfg: cfg.clone(),
             stats: HostStats {
                 dead_nodes_cleaned,
+                hung_services_removed,
                 ..HostStats::default()
             },
         })

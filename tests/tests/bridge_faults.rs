@@ -10,7 +10,9 @@ use needle_bridge::iceoryx2::prelude::{
     CallbackProgression, Config, Node, NodeState, PortFactory as _, ipc,
 };
 use needle_bridge::shm::{cleanup_dead_nodes, create_node};
-use needle_bridge::{BridgeConfig, ControllerNode, ControllerOptions, Rejection, SharedMemoryHost};
+use needle_bridge::{
+    BridgeConfig, ControllerNode, ControllerOptions, ControllerStats, Rejection, SharedMemoryHost,
+};
 use needle_bridge::{Transport, TransportError, setup_fingerprint};
 use needle_core::inverse::InverseParams;
 use needle_core::kinematics::DhChain;
@@ -184,28 +186,34 @@ fn a_host_without_controller_holds_the_insertion() {
 }
 
 const KILLED: &str = "stale_resources_of_a_killed_process_are_removed_at_start";
+const HALF_CREATED: &str = "a_service_left_half_created_by_a_killed_process_is_created_again";
 
-#[test]
-fn stale_resources_of_a_killed_process_are_removed_at_start() {
-    if std::env::var(ROLE).is_ok() {
-        // Child: open the services as a host would, then wait to be killed.
-        quiet_iceoryx();
-        let instance = std::env::var(INSTANCE).expect("instance");
-        let _host = SharedMemoryHost::<M>::connect(&config(&instance), 1).expect("host");
-        println!("READY");
-        std::thread::sleep(Duration::from_secs(30));
-        return;
+/// Child role of the kill tests: opens the services as a host would, says `READY`, and waits to
+/// be killed. Returns whether this process is the child.
+fn host_child_waiting_to_be_killed() -> bool {
+    if std::env::var(ROLE).is_err() {
+        return false;
     }
     quiet_iceoryx();
-    let instance = unique_instance("stale");
-    let mut child = spawn_role(KILLED, "host", &[(INSTANCE, instance.clone())]);
-    // Wait until the child's node exists: its services can then be opened.
+    let instance = std::env::var(INSTANCE).expect("instance");
+    let _host = SharedMemoryHost::<M>::connect(&config(&instance), 1).expect("host");
+    println!("READY");
+    std::thread::sleep(Duration::from_secs(30));
+    true
+}
+
+/// Starts a child host (re-running `test`), waits until it has opened both services, kills it,
+/// and checks that the dead node is removed. Returns the instance and an observer node.
+fn kill_a_connected_host(test: &str, tag: &str) -> (String, Node<ipc::Service>) {
+    let instance = unique_instance(tag);
+    let mut child = spawn_role(test, "host", &[(INSTANCE, instance.clone())]);
+    // READY comes after both services and ports exist: killing earlier could interrupt their
+    // creation, which is the other test's case.
+    assert!(
+        wait_for_line(&mut child, "READY", Duration::from_secs(20)),
+        "the child never connected"
+    );
     let node = create_node("needle-test-observer", &config(&instance)).expect("node");
-    let opened = wait_until(Duration::from_secs(20), || {
-        needle_bridge::shm::frame_service::<M>(&node, &config(&instance))
-            .is_ok_and(|s| s.dynamic_config().number_of_publishers() == 1)
-    });
-    assert!(opened, "the child never published its service");
     let pid = child.id() as i32;
     assert_eq!(node_state(pid), Some("alive"));
     child.kill().expect("kill the child");
@@ -222,18 +230,22 @@ fn stale_resources_of_a_killed_process_are_removed_at_start() {
         node_state(pid)
     );
     println!("dead nodes removed here: {cleaned}");
-    // And a new host can take the service over.
+    (instance, node)
+}
+
+/// A controller and a host connect on `instance` and one frame is answered.
+fn new_pair_answers(instance: &str) -> (ControllerStats, needle_bridge::HostStats) {
     let mut ctl = ControllerNode::<M>::connect(
         DhChain::rv1a(),
         InverseParams::default(),
         &ControllerOptions {
-            bridge: config(&instance),
+            bridge: config(instance),
             ..ControllerOptions::default()
         },
     )
     .expect("controller after the crash");
     let mut host = SharedMemoryHost::<M>::connect(
-        &config(&instance),
+        &config(instance),
         setup_fingerprint(&DhChain::rv1a(), &InverseParams::default()),
     )
     .expect("host after the crash");
@@ -254,6 +266,77 @@ fn stale_resources_of_a_killed_process_are_removed_at_start() {
     }
     assert!(answered, "no answer after the crash: {:?}", ctl.stats());
     let _ = host.exchange(frame, &mut cmd);
+    (ctl.stats(), host.stats())
+}
+
+#[test]
+fn stale_resources_of_a_killed_process_are_removed_at_start() {
+    if host_child_waiting_to_be_killed() {
+        return;
+    }
+    quiet_iceoryx();
+    let (instance, node) = kill_a_connected_host(KILLED, "stale");
+    // The killed host's frame publisher is gone from the service.
+    let frames = needle_bridge::shm::frame_service::<M>(&node, &config(&instance)).expect("open");
+    assert_eq!(frames.dynamic_config().number_of_publishers(), 0);
+    drop(frames);
+    // And a new host can take the service over.
+    let (ctl, host) = new_pair_answers(&instance);
+    assert_eq!(ctl.hung_services_removed + host.hung_services_removed, 0);
+}
+
+#[test]
+fn a_service_left_half_created_by_a_killed_process_is_created_again() {
+    if host_child_waiting_to_be_killed() {
+        return;
+    }
+    quiet_iceoryx();
+    // A process killed between writing a service's static config and finalising it leaves the
+    // file behind with its initial permissions (owner read-write instead of read-only), and
+    // nothing else of the service: every later open waits for the creation timeout and fails
+    // with `HangsInCreation`. (It happened for real in CI.) That state is reproduced here: the
+    // command service's static config, as the child wrote it, put back unfinalised after the
+    // child was killed and its services removed.
+    let instance = unique_instance("half");
+    let name = config(&instance).command_service_name();
+    let mut child = spawn_role(HALF_CREATED, "host", &[(INSTANCE, instance.clone())]);
+    assert!(
+        wait_for_line(&mut child, "READY", Duration::from_secs(20)),
+        "the child never connected"
+    );
+    let file = static_config_file(&name).expect("the command service's static config file");
+    let text = std::fs::read(&file).expect("read it");
+    child.kill().expect("kill the child");
+    let _ = child.wait();
+    let node = create_node("needle-test-observer", &config(&instance)).expect("node");
+    assert!(
+        wait_until(Duration::from_secs(5), || {
+            cleanup_dead_nodes(&node);
+            static_config_file(&name).is_none()
+        }),
+        "the killed host's services were not removed"
+    );
+    std::fs::write(&file, text).expect("write the static config back");
+    std::fs::set_permissions(&file, std::os::unix::fs::PermissionsExt::from_mode(0o600))
+        .expect("chmod");
+    let (ctl, host) = new_pair_answers(&instance);
+    assert_eq!(
+        ctl.hung_services_removed, 1,
+        "the controller, first to open, removes the half-created service: {ctl:?}"
+    );
+    assert_eq!(host.hung_services_removed, 0, "{host:?}");
+}
+
+/// The static config file of the service named `name` (iceoryx2 0.10 keeps one TOML file per
+/// service under `<root>/services`, with the name in it).
+fn static_config_file(name: &str) -> Option<std::path::PathBuf> {
+    let dir = format!("{}", Config::global_config().global.service_dir());
+    let needle = format!("service_name = \"{name}\"");
+    std::fs::read_dir(&dir).ok()?.flatten().find_map(|e| {
+        let p = e.path();
+        let text = std::fs::read_to_string(&p).ok()?;
+        text.contains(&needle).then_some(p)
+    })
 }
 
 /// The state of the iceoryx2 node of process `pid` in the node list: `alive`, `dead`, or none.

@@ -385,12 +385,13 @@ fn main() -> ExitCode {
                 }
             };
             eprintln!(
-                "needle serve: scene {} · session {:016x} · frames on {} · commands from {} · {} dead node(s) cleaned",
+                "needle serve: scene {} · session {:016x} · frames on {} · commands from {} · {} dead node(s) cleaned, {} half-created service(s) removed",
                 scene.name,
                 host.session(),
                 cfg.frame_service_name(),
                 cfg.command_service_name(),
-                host.stats().dead_nodes_cleaned
+                host.stats().dead_nodes_cleaned,
+                host.stats().hung_services_removed
             );
             eprintln!(
                 "needle serve: waiting for `needle-controller {} --instance {}`",

@@ -85,6 +85,30 @@ pub fn wait_child(child: &mut Child, limit: Duration) -> (Option<ExitStatus>, St
     (status, out)
 }
 
+/// Reads `child`'s stdout until a line ending in `line` arrives (the test harness prints the
+/// test's name first on the same line) (true) or `limit` passes (false).
+/// Takes the child's stdout.
+pub fn wait_for_line(child: &mut Child, line: &str, limit: Duration) -> bool {
+    use std::io::BufRead;
+    let Some(out) = child.stdout.take() else {
+        return false;
+    };
+    let (tx, rx) = std::sync::mpsc::channel();
+    let want = line.to_string();
+    std::thread::spawn(move || {
+        for l in std::io::BufReader::new(out).lines() {
+            match l {
+                Ok(l) if l.trim_end().ends_with(want.as_str()) => {
+                    let _ = tx.send(());
+                }
+                Ok(_) => {}
+                Err(_) => return,
+            }
+        }
+    });
+    rx.recv_timeout(limit).is_ok()
+}
+
 /// Polls `cond` every millisecond until it holds or `limit` passes.
 pub fn wait_until(limit: Duration, mut cond: impl FnMut() -> bool) -> bool {
     let start = Instant::now();
