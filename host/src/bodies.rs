@@ -234,7 +234,7 @@ pub fn build(scene: &Scene) -> Result<Simulation, SimError> {
             time_step: Some(h),
             kinematics: Kinematics::Corotational,
             refactor_every: scene.solver.refactor_every as usize,
-            ..GelParams::default()
+            background_factorization: scene.solver.background_factorization,
         },
     )?;
     let q0 = start_joints(scene)?;

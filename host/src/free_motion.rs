@@ -25,6 +25,13 @@
 //! - The symbolic factorisation is done once; the numeric one every step, or every
 //!   `refactor_every` steps (the matrix is then a few steps old: cheaper, a less exact Newton
 //!   step), or when [`GelModel::request_refactor`] is called.
+//! - **Background factorisation** (`GelParams::background_factorization`): the numeric
+//!   factorisation of step k's matrix runs on a second thread while step k goes on (proximity,
+//!   compliance, constraint solves, correction) and is used from step k + 1. Every step then
+//!   solves with the matrix of the step before: the right-hand side `f_ext − f_int(x)` is exact,
+//!   so the equilibrium reached is the same, and the Newton matrix is one step old. The first
+//!   step, a requested refactorisation and a failed background factorisation factorise at once.
+//!   The worker owns a second factor buffer; the two are swapped, nothing is allocated per step.
 //! - All buffers are allocated at construction.
 
 // Units are written in brackets ([mm], [N]) as in the workspace style: not intra-doc links.
@@ -35,7 +42,9 @@
 use crate::fem::beam::{self, BeamSection, CorotationalBeams};
 use crate::fem::tetra::{self, CorotationalTetra, Kinematics};
 use crate::fem::{Elasticity, FemError};
-use crate::linalg::{Cholesky, SymmetricMatrix, SymmetricPattern, nested_dissection_order};
+use crate::linalg::{
+    Cholesky, LinalgError, SymmetricMatrix, SymmetricPattern, nested_dissection_order,
+};
 use crate::mesh::TetMesh;
 use nalgebra::{Isometry3, UnitQuaternion, Vector3};
 
@@ -55,10 +64,101 @@ struct ReducedSystem {
     chol: Cholesky,
     work: Vec<f64>,
     work_many: Vec<f64>,
-    /// Steps since the last numeric factorisation (`None`: never factorised).
+    /// Steps since the factor in use was made (`None`: never factorised).
     factor_age: Option<usize>,
     refactor_every: usize,
     refactor_requested: bool,
+    /// The factorisation thread (background mode).
+    background: Option<Background>,
+}
+
+/// What the start of a step found of the background factorisation.
+enum Adopted {
+    /// A new factor is in use.
+    Yes,
+    /// No job was in flight.
+    Idle,
+    /// The job failed (not positive definite); its result was dropped.
+    Failed,
+}
+
+/// A matrix to factorise and the factor buffer to do it in, passed to the worker and back.
+struct Job {
+    chol: Cholesky,
+    matrix: SymmetricMatrix,
+    result: Result<(), LinalgError>,
+}
+
+/// The background factorisation thread of a [`ReducedSystem`]: one job in flight at most.
+struct Background {
+    jobs: std::sync::mpsc::SyncSender<Box<Job>>,
+    done: std::sync::mpsc::Receiver<Box<Job>>,
+    /// The job buffer while no job is in flight.
+    spare: Option<Box<Job>>,
+    /// This step's matrix, written while the previous one is being factorised.
+    staged: SymmetricMatrix,
+    /// Factorisations finished in the background and used.
+    adopted: u64,
+    /// Factorisations made at once instead (see [`ReducedSystem::free_motion`]).
+    immediate: u64,
+}
+
+impl std::fmt::Debug for Background {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Background")
+            .field("in_flight", &self.spare.is_none())
+            .field("adopted", &self.adopted)
+            .finish()
+    }
+}
+
+impl Background {
+    /// Starts the worker with a second factor buffer for `pattern` (same ordering).
+    fn start(pattern: &SymmetricPattern, order: Option<&[usize]>) -> Result<Self, FemError> {
+        let chol = Cholesky::try_new_ordered(pattern, order, 1)?;
+        let (jobs, inbox) = std::sync::mpsc::sync_channel::<Box<Job>>(1);
+        let (outbox, done) = std::sync::mpsc::sync_channel::<Box<Job>>(1);
+        std::thread::Builder::new()
+            .name("needle-factor".into())
+            .spawn(move || {
+                // Ends when the system (the sender) is dropped.
+                while let Ok(mut job) = inbox.recv() {
+                    let Job { chol, matrix, .. } = &mut *job;
+                    job.result = chol.factorize(matrix);
+                    if outbox.send(job).is_err() {
+                        return;
+                    }
+                }
+            })
+            .map_err(|_| FemError::Parameter {
+                what: "the background factorisation thread could not be started",
+            })?;
+        Ok(Self {
+            jobs,
+            done,
+            spare: Some(Box::new(Job {
+                chol,
+                matrix: SymmetricMatrix::zeros(pattern.clone()),
+                result: Ok(()),
+            })),
+            staged: SymmetricMatrix::zeros(pattern.clone()),
+            adopted: 0,
+            immediate: 0,
+        })
+    }
+
+    /// Waits for the job in flight, if any, and returns it.
+    fn finish(&mut self) -> Result<Option<Box<Job>>, FemError> {
+        if self.spare.is_some() {
+            return Ok(None);
+        }
+        match self.done.recv() {
+            Ok(job) => Ok(Some(job)),
+            Err(_) => Err(FemError::Parameter {
+                what: "the background factorisation thread stopped",
+            }),
+        }
+    }
 }
 
 impl ReducedSystem {
@@ -68,6 +168,7 @@ impl ReducedSystem {
         regularization_global: &[f64],
         refactor_every: usize,
         dof_coords: Option<&[[f64; 3]]>,
+        background: bool,
     ) -> Result<(Self, Vec<u32>), FemError> {
         let ndof = fixed.len();
         let mut dof_map = vec![SKIP; ndof];
@@ -102,6 +203,11 @@ impl ReducedSystem {
             nested_dissection_order(&pattern, &reduced)
         });
         let chol = Cholesky::try_new_ordered(&pattern, order.as_deref(), 1)?;
+        let background = if background {
+            Some(Background::start(&pattern, order.as_deref())?)
+        } else {
+            None
+        };
         let n = free.len();
         Ok((
             Self {
@@ -116,6 +222,7 @@ impl ReducedSystem {
                 factor_age: None,
                 refactor_every: refactor_every.max(1),
                 refactor_requested: false,
+                background,
             },
             slots,
         ))
@@ -142,6 +249,69 @@ impl ReducedSystem {
         self.add_regularization();
     }
 
+    /// Background mode, start of a step: waits for the factorisation of the previous step's
+    /// matrix and puts it in use (a failed one is dropped: the step then factorises at once).
+    fn adopt_background(&mut self) -> Result<Adopted, FemError> {
+        let Some(bg) = self.background.as_mut() else {
+            return Ok(Adopted::Idle);
+        };
+        let Some(mut job) = bg.finish()? else {
+            return Ok(Adopted::Idle);
+        };
+        let ok = job.result.is_ok();
+        if ok {
+            std::mem::swap(&mut self.chol, &mut job.chol);
+            std::mem::swap(&mut self.matrix, &mut job.matrix);
+            bg.adopted += 1;
+        }
+        bg.spare = Some(job);
+        Ok(if ok { Adopted::Yes } else { Adopted::Failed })
+    }
+
+    /// Background mode: writes this step's matrix into the staging buffer.
+    fn stage_background(&mut self, write: impl FnOnce(&mut [f64])) {
+        let Some(bg) = self.background.as_mut() else {
+            return;
+        };
+        bg.staged.fill_zero();
+        write(&mut bg.staged.values);
+        for (k, &s) in self.diag_slots.iter().enumerate() {
+            bg.staged.values[s] += self.regularization[k];
+        }
+    }
+
+    /// Background mode: makes the staged matrix the one to factorise at once.
+    fn unstage_background(&mut self) {
+        if let Some(bg) = self.background.as_mut() {
+            std::mem::swap(&mut self.matrix, &mut bg.staged);
+        }
+    }
+
+    /// Background mode: sends the staged matrix to the worker.
+    fn submit_background(&mut self) -> Result<(), FemError> {
+        let Some(bg) = self.background.as_mut() else {
+            return Ok(());
+        };
+        let Some(mut job) = bg.spare.take() else {
+            return Ok(());
+        };
+        std::mem::swap(&mut job.matrix, &mut bg.staged);
+        bg.jobs.send(job).map_err(|_| FemError::Parameter {
+            what: "the background factorisation thread stopped",
+        })
+    }
+
+    /// Background mode: waits for a job in flight and drops its result (a synchronous
+    /// factorisation supersedes it).
+    fn discard_background(&mut self) -> Result<(), FemError> {
+        if let Some(bg) = self.background.as_mut()
+            && let Some(job) = bg.finish()?
+        {
+            bg.spare = Some(job);
+        }
+        Ok(())
+    }
+
     /// The free-motion solve both models share: refactorises if due (`write` fills the
     /// elements' values), then `dx = (K + M/h²)⁻¹ (f_ext − f_int)` over global dofs.
     fn free_motion(
@@ -149,9 +319,41 @@ impl ReducedSystem {
         f_ext: &[f64],
         f_int: &[f64],
         dx: &mut [f64],
+        lag_ok: bool,
         write: impl FnOnce(&mut [f64]),
     ) -> Result<(), FemError> {
-        if self.needs_refactor() {
+        if self.background.is_some() {
+            // Assemble this step's matrix first: it overlaps the tail of the factorisation of
+            // the previous one, still running on the worker.
+            self.stage_background(write);
+            let failed = match self.adopt_background()? {
+                Adopted::Yes => {
+                    self.factor_age = Some(0);
+                    false
+                }
+                Adopted::Idle => {
+                    if let Some(age) = self.factor_age.as_mut() {
+                        *age += 1;
+                    }
+                    false
+                }
+                Adopted::Failed => true,
+            };
+            if self.factor_age.is_none() || self.refactor_requested || failed || !lag_ok {
+                // No factor yet, a request, a failed background factorisation, or elements
+                // that rotated too far since the factor's matrix: factorise now.
+                self.unstage_background();
+                self.factorize_now()?;
+                if let Some(bg) = self.background.as_mut() {
+                    bg.immediate += 1;
+                }
+            } else if self
+                .factor_age
+                .is_some_and(|a| a + 1 >= self.refactor_every)
+            {
+                self.submit_background()?;
+            }
+        } else if self.needs_refactor() {
             self.write_values(write);
             self.factorize()?;
         } else if let Some(age) = self.factor_age.as_mut() {
@@ -175,8 +377,13 @@ impl ReducedSystem {
         self.solve_global(rhs)
     }
 
-    /// Numeric factorisation of the assembled values.
+    /// Numeric factorisation of the assembled values (a background job in flight is dropped).
     fn factorize(&mut self) -> Result<(), FemError> {
+        self.discard_background()?;
+        self.factorize_now()
+    }
+
+    fn factorize_now(&mut self) -> Result<(), FemError> {
         self.factor_age = None;
         self.chol.factorize(&self.matrix)?;
         self.factor_age = Some(0);
@@ -256,6 +463,9 @@ pub struct GelParams {
     pub kinematics: Kinematics,
     /// Refactorise the matrix every this many steps (1 = every step).
     pub refactor_every: usize,
+    /// Factorise on a second thread while the step goes on, and use the factor from the next
+    /// step (see the module docs).
+    pub background_factorization: bool,
 }
 
 /// Fill-reducing elimination order of a sparse factorisation (chosen once, at construction).
@@ -279,9 +489,16 @@ impl Default for GelParams {
             time_step: None,
             kinematics: Kinematics::Corotational,
             refactor_every: 1,
+            background_factorization: false,
         }
     }
 }
+
+/// Background factorisation: the largest element rotation between two steps [rad] for which
+/// the previous step's matrix is used; above it the step factorises its own matrix at once.
+/// The tangent `R K0 Rᵀ` changes only through the rotations, by about `2θ` relative, and a
+/// Newton step with a matrix off by ε contracts by about ε: 0.05 rad keeps that near 0.1.
+pub const LAG_ROTATION_LIMIT: f64 = 0.2;
 
 /// The gel: corotational tetrahedra with eliminated Dirichlet nodes, and its sparse system.
 #[derive(Debug)]
@@ -294,6 +511,7 @@ pub struct GelModel {
     slots: Vec<u32>,
     f_int: Vec<f64>,
     dx: Vec<f64>,
+    rotation_change: f64,
 }
 
 impl GelModel {
@@ -352,8 +570,14 @@ impl GelModel {
         let entries = || (0..tetra.len()).flat_map(|e| tetra.stiffness_entry_dofs(e));
         let coords: Vec<[f64; 3]> = (0..3 * n).map(|g| mesh.nodes[g / 3].into()).collect();
         let nd = (ordering == FillOrdering::NestedDissection).then_some(coords.as_slice());
-        let (sys, slots) =
-            ReducedSystem::try_new(&fixed, entries, &reg, params.refactor_every, nd)?;
+        let (sys, slots) = ReducedSystem::try_new(
+            &fixed,
+            entries,
+            &reg,
+            params.refactor_every,
+            nd,
+            params.background_factorization,
+        )?;
         let mut sorted = fixed_nodes.to_vec();
         sorted.sort_unstable();
         sorted.dedup();
@@ -366,6 +590,7 @@ impl GelModel {
             slots,
             f_int: vec![0.0; 3 * n],
             dx: vec![0.0; 3 * n],
+            rotation_change: 0.0,
         })
     }
 
@@ -440,11 +665,25 @@ impl GelModel {
     /// Updates the element rotations and returns the internal forces `f_int(x)` at the current
     /// positions (3 per node, including at fixed nodes, where they are the reactions) [N].
     pub fn compute_internal_forces(&mut self) -> &[f64] {
-        self.tetra.update_rotations(&self.positions);
+        self.rotation_change = self.tetra.update_rotations(&self.positions);
         self.f_int.iter_mut().for_each(|v| *v = 0.0);
         self.tetra
             .add_internal_forces(&self.positions, &mut self.f_int);
         &self.f_int
+    }
+
+    /// The largest rotation of an element between the last two corotational updates [rad].
+    pub fn rotation_change(&self) -> f64 {
+        self.rotation_change
+    }
+
+    /// Factorisations so far: (finished in the background and used, made at once) — `None`
+    /// without background factorisation.
+    pub fn background_counts(&self) -> Option<(u64, u64)> {
+        self.sys
+            .background
+            .as_ref()
+            .map(|b| (b.adopted, b.immediate))
     }
 
     /// Corotational update and assembly: element rotations and internal forces at the current
@@ -486,9 +725,10 @@ impl GelModel {
     pub fn free_motion(&mut self, f_ext: &[f64]) -> Result<&[f64], FemError> {
         check_vec("external forces", f_ext, self.dof_count())?;
         self.compute_internal_forces();
+        let lag_ok = self.rotation_change <= LAG_ROTATION_LIMIT;
         let (tetra, slots) = (&self.tetra, &self.slots);
         self.sys
-            .free_motion(f_ext, &self.f_int, &mut self.dx, |v| {
+            .free_motion(f_ext, &self.f_int, &mut self.dx, lag_ok, |v| {
                 tetra.assemble(slots, v, 1.0)
             })?;
         Ok(&self.dx)
@@ -642,7 +882,7 @@ impl NeedleModel {
         };
         let entries = || (0..beams.len()).flat_map(|e| beams.stiffness_entry_dofs(e));
         let (sys, slots) =
-            ReducedSystem::try_new(&fixed, entries, &reg, params.refactor_every, None)?;
+            ReducedSystem::try_new(&fixed, entries, &reg, params.refactor_every, None, false)?;
         Ok(Self {
             positions,
             orientations,
@@ -748,7 +988,7 @@ impl NeedleModel {
         self.compute_internal_forces();
         let (beams, slots) = (&self.beams, &self.slots);
         self.sys
-            .free_motion(f_ext, &self.f_int, &mut self.dx, |v| {
+            .free_motion(f_ext, &self.f_int, &mut self.dx, true, |v| {
                 beams.assemble(slots, v, 1.0)
             })?;
         Ok(&self.dx)

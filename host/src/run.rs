@@ -181,6 +181,12 @@ pub struct RunSummary {
     pub unreachable_steps: usize,
     /// Steps in which a joint stopped at its limit.
     pub limit_steps: usize,
+    /// Gel factorisations finished on the background thread and used one step later (0 without
+    /// `solver.background_factorization`).
+    pub background_factorizations: u64,
+    /// Gel factorisations made at once in background mode (the first step, and steps whose
+    /// elements rotated more than `LAG_ROTATION_LIMIT` since the previous one).
+    pub immediate_factorizations: u64,
     /// Times the host held the insertion because no command arrived within the transport's
     /// deadline.
     pub holds: usize,
@@ -555,6 +561,7 @@ pub fn run_with(
             min_mm: *m,
         })
         .collect();
+    let background = sim.gel.model.background_counts().unwrap_or((0, 0));
     let summary = RunSummary {
         scene: scene.name.clone(),
         controller: opts.controller,
@@ -597,6 +604,8 @@ pub fn run_with(
         max_inverted_elements: max_inverted,
         unreachable_steps: count_flag(&reports, StatusFlags::TARGET_UNREACHABLE),
         limit_steps: count_flag(&reports, StatusFlags::SATURATED_LIMIT),
+        background_factorizations: background.0,
+        immediate_factorizations: background.1,
         holds,
         held_ms: held.as_secs_f64() * 1e3,
     };

@@ -7,7 +7,7 @@ use needle_host::fem::Elasticity;
 use needle_host::fem::tetra::{
     CorotationalTetra, Kinematics, rotation_from_deformation, rotation_from_deformation_svd,
 };
-use needle_host::free_motion::{GelModel, GelParams};
+use needle_host::free_motion::{GelModel, GelParams, LAG_ROTATION_LIMIT};
 use needle_host::mesh::{BoxDivisions, TetMesh, box_mesh, box_mesh_with_divisions};
 
 const GEL: Elasticity = Elasticity {
@@ -202,16 +202,7 @@ fn gravity_like_load(model: &GelModel, fz: f64) -> Vec<f64> {
 
 #[test]
 fn static_and_quasi_static_steps_converge_to_the_same_equilibrium() {
-    let mesh = box_mesh_with_divisions(
-        Vector3::zeros(),
-        Vector3::new(40.0, 20.0, 20.0),
-        BoxDivisions {
-            nx: 6,
-            ny: 3,
-            nz: 3,
-        },
-    );
-    let bottom = mesh.nodes_on_plane(2, 0.0, 1e-9);
+    let (mesh, bottom) = clamped_box_40x20x20();
     let mut stat = GelModel::try_new(mesh.clone(), &bottom, &GelParams::default()).unwrap();
     let dynamic = GelParams {
         time_step: Some(0.01),
@@ -369,4 +360,153 @@ fn benchmark_gel_5000_nodes_large_compression_converges() {
             .dot(&(x[t[3]] - x[t[0]]));
         assert!(v > 0.0, "element {e} inverted");
     }
+}
+
+/// Background factorisation: step k solves with the matrix of step k − 1 (exactly: compared with
+/// a second model factorised by hand at the previous positions), the first step and a requested
+/// refactorisation with the current one; the lag changes the steps but not the equilibrium.
+#[test]
+fn background_factorisation_solves_with_the_previous_steps_matrix() {
+    let (mesh, bottom, params) = background_box();
+    let bg_params = GelParams {
+        background_factorization: true,
+        ..params
+    };
+    let mut bg = GelModel::try_new(mesh.clone(), &bottom, &bg_params).unwrap();
+    let mut sync = GelModel::try_new(mesh.clone(), &bottom, &params).unwrap();
+    let mut by_hand = GelModel::try_new(mesh, &bottom, &params).unwrap();
+    // Rotations of a few degrees per step: the matrix changes, within the lag limit.
+    let f = gravity_like_load(&bg, -4e-3);
+    let mut previous = bg.positions().to_vec();
+    let mut ages = Vec::new();
+    let mut largest_lag_effect = 0.0f64;
+    for k in 0..12 {
+        if k == 8 {
+            bg.request_refactor();
+        }
+        let x = bg.positions().to_vec();
+        let dx = bg.free_motion(&f).unwrap().to_vec();
+        ages.push(bg.factor_age().unwrap());
+        assert!(bg.rotation_change() <= LAG_ROTATION_LIMIT);
+        // The matrix used: the current positions' on step 0 (no factor yet) and step 8
+        // (requested); the previous positions' otherwise (on step 1, step 0's factor is still
+        // in use as nothing was in flight).
+        let lagged = !matches!(k, 0 | 8);
+        by_hand
+            .positions_mut()
+            .copy_from_slice(if lagged { &previous } else { &x });
+        by_hand.refactor().unwrap();
+        by_hand.positions_mut().copy_from_slice(&x);
+        let f_int = by_hand.compute_internal_forces().to_vec();
+        let mut expected: Vec<f64> = f.iter().zip(&f_int).map(|(a, b)| a - b).collect();
+        by_hand.solve(&mut expected).unwrap();
+        let scale = expected.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        let err = dx
+            .iter()
+            .zip(&expected)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0, f64::max);
+        assert!(
+            err <= 1e-10 * scale,
+            "step {k}: background free motion differs from the hand-made one by {err:e} mm (scale {scale:e})"
+        );
+        // Against the current matrix: the lag changes the step (it must, for this test to
+        // mean anything).
+        sync.positions_mut().copy_from_slice(&x);
+        let dx_now = sync.free_motion(&f).unwrap();
+        let lag = dx
+            .iter()
+            .zip(dx_now)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0, f64::max);
+        if lagged && k > 1 {
+            largest_lag_effect = largest_lag_effect.max(lag / scale);
+        }
+        previous = x;
+        bg.apply_displacement(&dx).unwrap();
+    }
+    println!("factor ages {ages:?}; largest relative effect of the lag {largest_lag_effect:e}");
+    assert_eq!(ages, vec![0, 1, 0, 0, 0, 0, 0, 0, 0, 1, 0, 0]);
+    assert!(
+        largest_lag_effect > 1e-6,
+        "the lag had no effect: the test is void"
+    );
+    assert_eq!(bg.background_counts(), Some((9, 2)));
+    same_equilibrium(&mut bg, &f, &params);
+}
+
+/// A load that rotates elements by more than [`LAG_ROTATION_LIMIT`] per step: with the
+/// previous step's matrix throughout, these steps diverged (to 1e156 mm); the steps over the
+/// limit factorise at once, and the equilibrium is the one of the current matrix.
+#[test]
+fn background_factorisation_factorises_at_once_when_elements_rotate_far() {
+    let (mesh, bottom, params) = background_box();
+    let mut bg = GelModel::try_new(
+        mesh,
+        &bottom,
+        &GelParams {
+            background_factorization: true,
+            ..params
+        },
+    )
+    .unwrap();
+    let f = gravity_like_load(&bg, -2e-2);
+    let mut largest = 0.0f64;
+    for _ in 0..400 {
+        let dx = bg.free_motion(&f).unwrap().to_vec();
+        largest = largest.max(bg.rotation_change());
+        bg.apply_displacement(&dx).unwrap();
+    }
+    let (adopted, immediate) = bg.background_counts().unwrap();
+    println!(
+        "largest rotation per step {largest:.3} rad; {adopted} in the background, {immediate} at once"
+    );
+    assert!(largest > LAG_ROTATION_LIMIT);
+    assert!(immediate > 1 && adopted > 1);
+    same_equilibrium(&mut bg, &f, &params);
+}
+
+/// A 40 × 20 × 20 mm box of 6 × 3 × 3 cells with its bottom nodes (to clamp).
+fn clamped_box_40x20x20() -> (TetMesh, Vec<usize>) {
+    let mesh = box_mesh_with_divisions(
+        Vector3::zeros(),
+        Vector3::new(40.0, 20.0, 20.0),
+        BoxDivisions {
+            nx: 6,
+            ny: 3,
+            nz: 3,
+        },
+    );
+    let bottom = mesh.nodes_on_plane(2, 0.0, 1e-9);
+    (mesh, bottom)
+}
+
+fn background_box() -> (TetMesh, Vec<usize>, GelParams) {
+    let (mesh, bottom) = clamped_box_40x20x20();
+    let params = GelParams {
+        time_step: Some(0.05),
+        density: 1e-8,
+        ..GelParams::default()
+    };
+    (mesh, bottom, params)
+}
+
+/// Runs `model` and a model with the current matrix each step (`params`) to rest under `f` and
+/// compares where they end.
+fn same_equilibrium(model: &mut GelModel, f: &[f64], params: &GelParams) {
+    let bottom = model.fixed_nodes().to_vec();
+    let mut reference = GelModel::try_new(model.mesh().clone(), &bottom, params).unwrap();
+    for m in [&mut *model, &mut reference] {
+        for _ in 0..400 {
+            let dx = m.free_motion(f).unwrap().to_vec();
+            m.apply_displacement(&dx).unwrap();
+        }
+    }
+    let diff = model
+        .positions()
+        .iter()
+        .zip(reference.positions())
+        .map(|(a, b)| (a - b).norm())
+        .fold(0.0, f64::max);
+    assert!(diff < 1e-8, "equilibria differ by {diff:e} mm");
 }

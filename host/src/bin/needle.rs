@@ -240,6 +240,12 @@ fn print_summary(s: &RunSummary, json: bool) -> ExitCode {
             100.0 * s.max_strain,
             s.max_inverted_elements
         );
+        if s.background_factorizations + s.immediate_factorizations > 0 {
+            println!(
+                "gel factorisations: {} on the background thread (used one step later), {} at once",
+                s.background_factorizations, s.immediate_factorizations
+            );
+        }
         if s.unreachable_steps + s.limit_steps > 0 {
             println!(
                 "target unreachable in {} steps, a joint at its limit in {} steps",

@@ -333,15 +333,23 @@ impl CorotationalTetra {
         out
     }
 
-    /// Updates every element rotation from the positions `x` [mm] (no-op for [`Kinematics::Linear`]).
-    pub fn update_rotations(&mut self, x: &[Vector3<f64>]) {
+    /// Updates every element rotation from the positions `x` [mm] (no-op for [`Kinematics::Linear`])
+    /// and returns the largest rotation of an element since the previous update [rad] (the
+    /// tangent `R K0 Rᵀ` changes only through these: it bounds how much an older matrix is off).
+    pub fn update_rotations(&mut self, x: &[Vector3<f64>]) -> f64 {
         if self.kinematics == Kinematics::Linear {
-            return;
+            return 0.0;
         }
+        let mut largest = 0.0f64;
         for e in 0..self.tets.len() {
             let f = self.deformation_gradient(e, x);
-            self.rotations[e] = rotation_from_deformation(&f);
+            let r = rotation_from_deformation(&f);
+            // ‖R − R_old‖_F = 2√2 sin(θ/2) for the relative rotation angle θ.
+            largest = largest.max((r - self.rotations[e]).norm_squared());
+            self.rotations[e] = r;
         }
+        let chord = (largest.sqrt() / (2.0 * core::f64::consts::SQRT_2)).min(1.0);
+        2.0 * chord.asin()
     }
 
     /// Internal force of element `e` at positions `x` with the current rotation, node-major [N].

@@ -353,6 +353,10 @@ pub struct SolverSpec {
     /// Refactorise the gel's stiffness every this many steps (1 = every step).
     #[serde(default = "default_refactor")]
     pub refactor_every: u32,
+    /// Factorise the gel's stiffness on a second thread while the step goes on, and use it
+    /// from the next step (the Newton matrix is then one step old).
+    #[serde(default = "default_background")]
+    pub background_factorization: bool,
 }
 
 impl Default for SolverSpec {
@@ -362,6 +366,7 @@ impl Default for SolverSpec {
             gs_max_iterations: default_gs_iter(),
             time_step: default_h(),
             refactor_every: default_refactor(),
+            background_factorization: default_background(),
         }
     }
 }
@@ -574,6 +579,10 @@ fn default_gs_iter() -> u32 {
 fn default_h() -> f64 {
     0.04
 }
+fn default_background() -> bool {
+    true
+}
+
 fn default_refactor() -> u32 {
     1
 }
