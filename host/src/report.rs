@@ -75,16 +75,19 @@ pub enum Group {
     BlendDistance,
     /// Sliding-constraint spacing d_n.
     ConstraintSpacing,
+    /// The gel's factorisation: in the background (one step old) or synchronous.
+    Factorization,
 }
 
 impl Group {
     /// Every group, in report order.
-    pub const ALL: [Group; 5] = [
+    pub const ALL: [Group; 6] = [
         Group::Controllers,
         Group::Mesh,
         Group::DeltaQ,
         Group::BlendDistance,
         Group::ConstraintSpacing,
+        Group::Factorization,
     ];
 
     /// Title of the group's table.
@@ -97,6 +100,9 @@ impl Group {
                 "Blend distance d (complex, inverse; 10–50 % of the 60 mm gel depth)"
             }
             Group::ConstraintSpacing => "Sliding-constraint spacing d_n (complex, inverse)",
+            Group::Factorization => {
+                "Gel factorisation: background (one step old) against synchronous (inverse)"
+            }
         }
     }
 
@@ -108,6 +114,7 @@ impl Group {
             Group::DeltaQ => "delta_q",
             Group::BlendDistance => "blend_distance",
             Group::ConstraintSpacing => "constraint_spacing",
+            Group::Factorization => "factorization",
         }
     }
 }
@@ -322,6 +329,25 @@ fn plan(quick: bool) -> Vec<Spec> {
                 overrides: with(field, format!("{v:?}")),
                 group,
                 parameter: fmt.replace("{}", &format!("{v}")),
+            });
+        }
+    }
+    let scenes: &[&'static str] = if quick {
+        &["complex"]
+    } else {
+        &["simple", "complex"]
+    };
+    for &scene in scenes {
+        for (background, text) in [
+            (true, "background, one step old (default)"),
+            (false, "synchronous (the paper's)"),
+        ] {
+            specs.push(Spec {
+                scene,
+                controller: ControllerKind::Inverse,
+                overrides: with("solver.background_factorization", background.to_string()),
+                group: Group::Factorization,
+                parameter: text.into(),
             });
         }
     }
@@ -925,13 +951,14 @@ fn summary_markdown(s: &ReportSummary, files: &[PathBuf]) -> String {
 
 const CHART_SIZE: (u32, u32) = (1400, 560);
 
-const COLORS: [RGBColor; 6] = [
+const COLORS: [RGBColor; 7] = [
     RGBColor(31, 119, 180),
     RGBColor(214, 39, 40),
     RGBColor(44, 160, 44),
     RGBColor(255, 127, 14),
     RGBColor(148, 103, 189),
     RGBColor(140, 86, 75),
+    RGBColor(227, 119, 194),
 ];
 
 fn register_fonts() {
@@ -1245,8 +1272,9 @@ where
     for (r, x, y) in pts {
         for m in &r.memberships {
             let (name, colour) = match (m.group, r.controller) {
+                // After every group's colour.
                 (Group::Controllers, ControllerKind::Naive) => {
-                    ("controllers (naive)".to_owned(), 5)
+                    ("controllers (naive)".to_owned(), Group::ALL.len())
                 }
                 (Group::Controllers, ControllerKind::Inverse) => {
                     ("controllers (inverse)".to_owned(), 0)
