@@ -3,7 +3,10 @@
 //!
 //! - `full_step_<n>_nodes`: one [`World::step`](needle_host::world::World::step) of the complex
 //!   scene with a gel of about `n` nodes, the tip about 20 mm deep in the gel (300 steps of
-//!   0.1 mm are run once in the setup, not timed).
+//!   0.1 mm are run once in the setup, not timed). The gel is factorised in the background
+//!   (the scene default).
+//! - `full_step_<n>_nodes_synchronous` (1500 and 1800 nodes): the same with
+//!   `solver.background_factorization = false`, the paper's synchronous factorisation.
 //!
 //! A world cannot be cloned, so the timed loop runs successive steps on the live world: every
 //! iteration advances the insertion by another 0.1 mm. The number of timed steps is bounded (flat
@@ -45,10 +48,29 @@ fn median(mut v: Vec<f64>) -> f64 {
 fn bench_full_step(c: &mut Criterion) {
     let mut group = c.benchmark_group("full_step");
     group.sample_size(10).sampling_mode(SamplingMode::Flat);
-    for nodes in [600, 1100, 1500, 1800] {
+    let variants = [
+        (600, true),
+        (1100, true),
+        (1500, true),
+        (1800, true),
+        (1500, false),
+        (1800, false),
+    ];
+    for (nodes, background) in variants {
+        let name = if background {
+            format!("full_step_{nodes}_nodes")
+        } else {
+            format!("full_step_{nodes}_nodes_synchronous")
+        };
         let scene = Scene::builtin("complex")
             .expect("embedded scene")
-            .with_overrides(&[("gel.box.nodes".into(), nodes.to_string())])
+            .with_overrides(&[
+                ("gel.box.nodes".into(), nodes.to_string()),
+                (
+                    "solver.background_factorization".into(),
+                    background.to_string(),
+                ),
+            ])
             .expect("valid override");
         let planned = planned_steps(&scene);
         let mut world = build(&scene).expect("the benchmark scene builds");
@@ -68,7 +90,7 @@ fn bench_full_step(c: &mut Criterion) {
             .measurement_time(per_step * TIMED_STEPS);
         let depth0 = world.depth();
         let mut timed: Vec<StepReport> = Vec::new();
-        group.bench_function(format!("full_step_{nodes}_nodes"), |b| {
+        group.bench_function(&name, |b| {
             b.iter_custom(|iters| {
                 let mut elapsed = Duration::ZERO;
                 for _ in 0..iters {
@@ -86,7 +108,7 @@ fn bench_full_step(c: &mut Criterion) {
         });
         let med = |f: fn(&StepReport) -> f64| median(timed.iter().map(f).collect());
         eprintln!(
-            "full_step_{nodes}_nodes: {} gel nodes, depth {depth0:.1} → {:.1} mm over {} timed steps; \
+            "{name}: {} gel nodes, depth {depth0:.1} → {:.1} mm over {} timed steps; \
              stage medians [ms]: total {:.2} · FM {:.2} · CD {:.2} · CC {:.2} · SC {:.2} · corr {:.2}",
             world.gel.model.positions().len(),
             world.depth(),
