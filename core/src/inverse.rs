@@ -535,7 +535,13 @@ impl<const M: usize> Controller<M> {
         }
         let n = self.red.rows();
         if n > 0 {
-            self.gs.prepare(&self.red.w, n, self.red.groups())?;
+            // The frame's own W passed validation, so a failure here is the Schur complement
+            // of the base block: W is not positive definite (e.g. a corrupted diagonal).
+            self.gs
+                .prepare(&self.red.w, n, self.red.groups())
+                .map_err(|_| StepError::NonFinite {
+                    stage: "W without the base rows (not positive definite)",
+                })?;
         }
         Ok(())
     }

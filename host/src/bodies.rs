@@ -233,7 +233,7 @@ pub fn build(scene: &Scene) -> Result<Simulation, SimError> {
             density: scene.gel.density,
             time_step: Some(h),
             kinematics: Kinematics::Corotational,
-            refactor_every: scene.solver.refactor_every as usize,
+            refactor_every: scene.solver.refactor_every() as usize,
             background_factorization: scene.solver.background_factorization,
         },
     )?;

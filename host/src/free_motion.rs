@@ -26,12 +26,14 @@
 //!   `refactor_every` steps (the matrix is then a few steps old: cheaper, a less exact Newton
 //!   step), or when [`GelModel::request_refactor`] is called.
 //! - **Background factorisation** (`GelParams::background_factorization`): the numeric
-//!   factorisation of step k's matrix runs on a second thread while step k goes on (proximity,
-//!   compliance, constraint solves, correction) and is used from step k + 1. Every step then
-//!   solves with the matrix of the step before: the right-hand side `f_ext − f_int(x)` is exact,
-//!   so the equilibrium reached is the same, and the Newton matrix is one step old. The first
-//!   step, a requested refactorisation and a failed background factorisation factorise at once.
-//!   The worker owns a second factor buffer; the two are swapped, nothing is allocated per step.
+//!   factorisation runs on a second thread while the steps go on. With `refactor_every = r`, a
+//!   matrix assembled at step k is factorised during steps k … k + r − 1 and used from step
+//!   k + r for r steps (r = 1: every step solves with the matrix of the step before). The
+//!   right-hand side `f_ext − f_int(x)` is exact, so the equilibrium reached is the same; the
+//!   Newton matrix is a few steps old. The first step, a requested refactorisation, a failed
+//!   background factorisation, and a step whose elements rotated more than
+//!   [`LAG_ROTATION_LIMIT`] since the matrix in use factorise at once. The worker owns a second
+//!   factor buffer; the two are swapped, nothing is allocated per step.
 //! - All buffers are allocated at construction.
 
 // Units are written in brackets ([mm], [N]) as in the workspace style: not intra-doc links.
@@ -46,7 +48,7 @@ use crate::linalg::{
     Cholesky, LinalgError, SymmetricMatrix, SymmetricPattern, nested_dissection_order,
 };
 use crate::mesh::TetMesh;
-use nalgebra::{Isometry3, UnitQuaternion, Vector3};
+use nalgebra::{Isometry3, Matrix3, UnitQuaternion, Vector3};
 
 const SKIP: u32 = u32::MAX;
 
@@ -73,13 +75,25 @@ struct ReducedSystem {
 }
 
 /// What the start of a step found of the background factorisation.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 enum Adopted {
     /// A new factor is in use.
     Yes,
-    /// No job was in flight.
+    /// No job was due.
+    #[default]
     Idle,
     /// The job failed (not positive definite); its result was dropped.
     Failed,
+}
+
+/// What a step's free motion did with the factors (background mode).
+#[derive(Clone, Copy, Debug, Default)]
+struct FactorEvent {
+    adopted: Adopted,
+    /// The step factorised its own matrix at once.
+    immediate: bool,
+    /// The step's matrix was sent to the worker.
+    submitted: bool,
 }
 
 /// A matrix to factorise and the factor buffer to do it in, passed to the worker and back.
@@ -101,6 +115,8 @@ struct Background {
     adopted: u64,
     /// Factorisations made at once instead (see [`ReducedSystem::free_motion`]).
     immediate: u64,
+    /// Steps since the job in flight was sent.
+    in_flight_steps: usize,
 }
 
 impl std::fmt::Debug for Background {
@@ -144,6 +160,7 @@ impl Background {
             staged: SymmetricMatrix::zeros(pattern.clone()),
             adopted: 0,
             immediate: 0,
+            in_flight_steps: 0,
         })
     }
 
@@ -249,12 +266,21 @@ impl ReducedSystem {
         self.add_regularization();
     }
 
-    /// Background mode, start of a step: waits for the factorisation of the previous step's
-    /// matrix and puts it in use (a failed one is dropped: the step then factorises at once).
+    /// Background mode, start of a step: counts the steps of the job in flight and, once it is
+    /// due (`refactor_every` steps after its matrix), waits for it and puts it in use (a failed
+    /// one is dropped: the step then factorises at once).
     fn adopt_background(&mut self) -> Result<Adopted, FemError> {
+        let every = self.refactor_every;
         let Some(bg) = self.background.as_mut() else {
             return Ok(Adopted::Idle);
         };
+        if bg.spare.is_some() {
+            return Ok(Adopted::Idle);
+        }
+        bg.in_flight_steps += 1;
+        if bg.in_flight_steps < every {
+            return Ok(Adopted::Idle);
+        }
         let Some(mut job) = bg.finish()? else {
             return Ok(Adopted::Idle);
         };
@@ -269,7 +295,7 @@ impl ReducedSystem {
     }
 
     /// Background mode: writes this step's matrix into the staging buffer.
-    fn stage_background(&mut self, write: impl FnOnce(&mut [f64])) {
+    fn stage_background(&mut self, write: &impl Fn(&mut [f64])) {
         let Some(bg) = self.background.as_mut() else {
             return;
         };
@@ -296,6 +322,7 @@ impl ReducedSystem {
             return Ok(());
         };
         std::mem::swap(&mut job.matrix, &mut bg.staged);
+        bg.in_flight_steps = 0;
         bg.jobs.send(job).map_err(|_| FemError::Parameter {
             what: "the background factorisation thread stopped",
         })
@@ -319,39 +346,47 @@ impl ReducedSystem {
         f_ext: &[f64],
         f_int: &[f64],
         dx: &mut [f64],
-        lag_ok: bool,
-        write: impl FnOnce(&mut [f64]),
-    ) -> Result<(), FemError> {
-        if self.background.is_some() {
-            // Assemble this step's matrix first: it overlaps the tail of the factorisation of
-            // the previous one, still running on the worker.
-            self.stage_background(write);
-            let failed = match self.adopt_background()? {
-                Adopted::Yes => {
-                    self.factor_age = Some(0);
-                    false
-                }
+        lag_ok: impl FnOnce(Adopted) -> bool,
+        write: impl Fn(&mut [f64]),
+    ) -> Result<FactorEvent, FemError> {
+        let mut event = FactorEvent::default();
+        if let Some(bg) = self.background.as_mut() {
+            // A job in flight is due after `refactor_every` steps (1: the step after its
+            // matrix). Assemble this step's matrix first when it will be sent (no job in flight
+            // after this step's adoption): that overlaps the tail of the running factorisation.
+            let due = bg.spare.is_none() && bg.in_flight_steps + 1 >= self.refactor_every;
+            let will_submit = bg.spare.is_some() || due;
+            if will_submit {
+                self.stage_background(&write);
+            }
+            event.adopted = self.adopt_background()?;
+            match event.adopted {
+                Adopted::Yes => self.factor_age = Some(0),
                 Adopted::Idle => {
                     if let Some(age) = self.factor_age.as_mut() {
                         *age += 1;
                     }
-                    false
                 }
-                Adopted::Failed => true,
-            };
-            if self.factor_age.is_none() || self.refactor_requested || failed || !lag_ok {
+                Adopted::Failed => self.factor_age = None,
+            }
+            let in_use_ok = self.factor_age.is_some() && lag_ok(event.adopted);
+            if !in_use_ok || self.refactor_requested {
                 // No factor yet, a request, a failed background factorisation, or elements
-                // that rotated too far since the factor's matrix: factorise now.
+                // that rotated too far since the matrix in use: factorise now.
+                if !will_submit {
+                    self.stage_background(&write);
+                }
                 self.unstage_background();
+                // A job still in flight holds an older matrix than this one: drop it.
+                self.discard_background()?;
                 self.factorize_now()?;
+                event.immediate = true;
                 if let Some(bg) = self.background.as_mut() {
                     bg.immediate += 1;
                 }
-            } else if self
-                .factor_age
-                .is_some_and(|a| a + 1 >= self.refactor_every)
-            {
+            } else if self.background.as_ref().is_some_and(|b| b.spare.is_some()) {
                 self.submit_background()?;
+                event.submitted = true;
             }
         } else if self.needs_refactor() {
             self.write_values(write);
@@ -362,7 +397,8 @@ impl ReducedSystem {
         for (d, (fe, fi)) in dx.iter_mut().zip(f_ext.iter().zip(f_int)) {
             *d = fe - fi;
         }
-        self.solve_global(dx)
+        self.solve_global(dx)?;
+        Ok(event)
     }
 
     /// [`Self::solve_global`] after checking the length (one value per global dof).
@@ -461,10 +497,11 @@ pub struct GelParams {
     pub time_step: Option<f64>,
     /// Corotational (the paper's model) or linear kinematics.
     pub kinematics: Kinematics,
-    /// Refactorise the matrix every this many steps (1 = every step).
+    /// Refactorise the matrix every this many steps (1 = every step); with the background
+    /// factorisation, the depth of the pipeline.
     pub refactor_every: usize,
-    /// Factorise on a second thread while the step goes on, and use the factor from the next
-    /// step (see the module docs).
+    /// Factorise on a second thread while the steps go on, and use the factor `refactor_every`
+    /// steps later (see the module docs).
     pub background_factorization: bool,
 }
 
@@ -494,10 +531,10 @@ impl Default for GelParams {
     }
 }
 
-/// Background factorisation: the largest element rotation between two steps [rad] for which
-/// the previous step's matrix is used; above it the step factorises its own matrix at once.
-/// The tangent `R K0 Rᵀ` changes only through the rotations, by about `2θ` relative, and a
-/// Newton step with a matrix off by ε contracts by about ε: 0.05 rad keeps that near 0.1.
+/// Background factorisation: the largest rotation of an element [rad] between the matrix of the
+/// factor in use and the current positions for which that factor is used; above it the step
+/// factorises its own matrix at once. The tangent `R K0 Rᵀ` changes only through the rotations,
+/// by about `2θ` relative, and a Newton step with a matrix off by ε contracts by about ε.
 pub const LAG_ROTATION_LIMIT: f64 = 0.2;
 
 /// The gel: corotational tetrahedra with eliminated Dirichlet nodes, and its sparse system.
@@ -512,6 +549,23 @@ pub struct GelModel {
     f_int: Vec<f64>,
     dx: Vec<f64>,
     rotation_change: f64,
+    /// Background mode: the element rotations of the matrix of the factor in use, and of the
+    /// matrix being factorised.
+    rotations_in_use: Vec<Matrix3<f64>>,
+    rotations_sent: Vec<Matrix3<f64>>,
+    lag_rotation: f64,
+}
+
+/// The largest angle between corresponding rotations of `a` and `b` [rad]
+/// (`‖R − R'‖_F = 2√2 sin(θ/2)`).
+fn largest_rotation_between(a: &[Matrix3<f64>], b: &[Matrix3<f64>]) -> f64 {
+    let largest = a
+        .iter()
+        .zip(b)
+        .map(|(r, s)| (r - s).norm_squared())
+        .fold(0.0f64, f64::max);
+    let chord = (largest.sqrt() / (2.0 * core::f64::consts::SQRT_2)).min(1.0);
+    2.0 * chord.asin()
 }
 
 impl GelModel {
@@ -540,6 +594,7 @@ impl GelModel {
         ordering: FillOrdering,
     ) -> Result<Self, FemError> {
         let tetra = CorotationalTetra::try_new(&mesh, &params.elasticity, params.kinematics)?;
+        let tetra_len = tetra.len();
         let n = mesh.nodes.len();
         let mut fixed = vec![false; 3 * n];
         for &node in fixed_nodes {
@@ -591,6 +646,17 @@ impl GelModel {
             f_int: vec![0.0; 3 * n],
             dx: vec![0.0; 3 * n],
             rotation_change: 0.0,
+            rotations_in_use: if params.background_factorization {
+                vec![Matrix3::identity(); tetra_len]
+            } else {
+                Vec::new()
+            },
+            rotations_sent: if params.background_factorization {
+                vec![Matrix3::identity(); tetra_len]
+            } else {
+                Vec::new()
+            },
+            lag_rotation: 0.0,
         })
     }
 
@@ -677,6 +743,12 @@ impl GelModel {
         self.rotation_change
     }
 
+    /// Background mode: the largest rotation of an element between the matrix of the factor the
+    /// last free motion used and its positions [rad] (0 when it factorised at once).
+    pub fn lag_rotation(&self) -> f64 {
+        self.lag_rotation
+    }
+
     /// Factorisations so far: (finished in the background and used, made at once) — `None`
     /// without background factorisation.
     pub fn background_counts(&self) -> Option<(u64, u64)> {
@@ -725,12 +797,29 @@ impl GelModel {
     pub fn free_motion(&mut self, f_ext: &[f64]) -> Result<&[f64], FemError> {
         check_vec("external forces", f_ext, self.dof_count())?;
         self.compute_internal_forces();
-        let lag_ok = self.rotation_change <= LAG_ROTATION_LIMIT;
         let (tetra, slots) = (&self.tetra, &self.slots);
-        self.sys
-            .free_motion(f_ext, &self.f_int, &mut self.dx, lag_ok, |v| {
-                tetra.assemble(slots, v, 1.0)
-            })?;
+        let (in_use, sent) = (&mut self.rotations_in_use, &mut self.rotations_sent);
+        let lag = &mut self.lag_rotation;
+        let event = self.sys.free_motion(
+            f_ext,
+            &self.f_int,
+            &mut self.dx,
+            |adopted| {
+                if adopted == Adopted::Yes {
+                    std::mem::swap(in_use, sent);
+                }
+                *lag = largest_rotation_between(tetra.rotations(), in_use);
+                *lag <= LAG_ROTATION_LIMIT
+            },
+            |v| tetra.assemble(slots, v, 1.0),
+        )?;
+        if event.immediate {
+            self.rotations_in_use
+                .copy_from_slice(self.tetra.rotations());
+            self.lag_rotation = 0.0;
+        } else if event.submitted {
+            self.rotations_sent.copy_from_slice(self.tetra.rotations());
+        }
         Ok(&self.dx)
     }
 
@@ -987,10 +1076,13 @@ impl NeedleModel {
         check_vec("external loads", f_ext, self.dof_count())?;
         self.compute_internal_forces();
         let (beams, slots) = (&self.beams, &self.slots);
-        self.sys
-            .free_motion(f_ext, &self.f_int, &mut self.dx, true, |v| {
-                beams.assemble(slots, v, 1.0)
-            })?;
+        self.sys.free_motion(
+            f_ext,
+            &self.f_int,
+            &mut self.dx,
+            |_| true,
+            |v| beams.assemble(slots, v, 1.0),
+        )?;
         Ok(&self.dx)
     }
 

@@ -129,7 +129,7 @@ proptest! {
             }
             Err(e) => {
                 let explained = frame.validate().is_err() || matches!(e, needle_core::StepError::NonFinite { .. });
-                prop_assert!(explained);
+                prop_assert!(explained, "unexplained error: {e:?}");
                 prop_assert_eq!(cmd.q, before, "command untouched on error");
                 let _ = format!("{e}");
             }

@@ -362,108 +362,137 @@ fn benchmark_gel_5000_nodes_large_compression_converges() {
     }
 }
 
-/// Background factorisation: step k solves with the matrix of step k − 1 (exactly: compared with
-/// a second model factorised by hand at the previous positions), the first step and a requested
-/// refactorisation with the current one; the lag changes the steps but not the equilibrium.
+/// Background factorisation with a pipeline of `refactor_every` = 1, 2, 3 steps: every step
+/// solves with exactly the matrix the pipeline's rule gives (compared with a second model
+/// factorised by hand at those positions): the first step and a requested refactorisation
+/// factorise their own; a matrix sent at step k is used from step k + r; a step sends its matrix
+/// when nothing is in flight. The lag changes the steps but not the equilibrium.
 #[test]
-fn background_factorisation_solves_with_the_previous_steps_matrix() {
-    let (mesh, bottom, params) = background_box();
-    let bg_params = GelParams {
-        background_factorization: true,
-        ..params
-    };
-    let mut bg = GelModel::try_new(mesh.clone(), &bottom, &bg_params).unwrap();
-    let mut sync = GelModel::try_new(mesh.clone(), &bottom, &params).unwrap();
-    let mut by_hand = GelModel::try_new(mesh, &bottom, &params).unwrap();
-    // Rotations of a few degrees per step: the matrix changes, within the lag limit.
-    let f = gravity_like_load(&bg, -4e-3);
-    let mut previous = bg.positions().to_vec();
-    let mut ages = Vec::new();
-    let mut largest_lag_effect = 0.0f64;
-    for k in 0..12 {
-        if k == 8 {
-            bg.request_refactor();
+fn background_factorisation_solves_with_the_pipelines_matrix() {
+    for every in [1, 2, 3] {
+        let (mesh, bottom, params) = background_box();
+        let bg_params = GelParams {
+            background_factorization: true,
+            refactor_every: every,
+            ..params
+        };
+        let mut bg = GelModel::try_new(mesh.clone(), &bottom, &bg_params).unwrap();
+        let mut sync = GelModel::try_new(mesh.clone(), &bottom, &params).unwrap();
+        let mut by_hand = GelModel::try_new(mesh, &bottom, &params).unwrap();
+        // Rotations of a few degrees per step: the matrix changes, within the lag limit.
+        let f = gravity_like_load(&bg, -4e-3);
+        let mut history: Vec<Vec<Vector3<f64>>> = Vec::new();
+        // The rule: (step whose matrix is in use, step whose matrix is in flight, its steps).
+        let (mut in_use, mut sent, mut in_flight) = (None::<usize>, None::<usize>, 0);
+        let (mut ages, mut expected_ages) = (Vec::new(), Vec::new());
+        let mut age = 0;
+        let mut largest_lag_effect = 0.0f64;
+        for k in 0..14 {
+            let request = k == 8;
+            if request {
+                bg.request_refactor();
+            }
+            if let Some(s) = sent {
+                in_flight += 1;
+                if in_flight >= every {
+                    (in_use, sent, age) = (Some(s), None, 0);
+                } else {
+                    age += 1;
+                }
+            } else {
+                age += 1;
+            }
+            if in_use.is_none() || request {
+                (in_use, sent, age) = (Some(k), None, 0);
+            } else if sent.is_none() {
+                (sent, in_flight) = (Some(k), 0);
+            }
+            expected_ages.push(age);
+            let x = bg.positions().to_vec();
+            history.push(x.clone());
+            let dx = bg.free_motion(&f).unwrap().to_vec();
+            ages.push(bg.factor_age().unwrap());
+            assert!(bg.lag_rotation() <= LAG_ROTATION_LIMIT);
+            let source = in_use.unwrap();
+            by_hand.positions_mut().copy_from_slice(&history[source]);
+            by_hand.refactor().unwrap();
+            by_hand.positions_mut().copy_from_slice(&x);
+            let f_int = by_hand.compute_internal_forces().to_vec();
+            let mut expected: Vec<f64> = f.iter().zip(&f_int).map(|(a, b)| a - b).collect();
+            by_hand.solve(&mut expected).unwrap();
+            let scale = expected.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            let err = dx
+                .iter()
+                .zip(&expected)
+                .map(|(a, b)| (a - b).abs())
+                .fold(0.0, f64::max);
+            assert!(
+                err <= 1e-10 * scale,
+                "every {every}, step {k}: background free motion differs from the one with step {source}'s matrix by {err:e} mm (scale {scale:e})"
+            );
+            // Against the current matrix: the lag changes the step (it must, for this test to
+            // mean anything).
+            sync.positions_mut().copy_from_slice(&x);
+            let dx_now = sync.free_motion(&f).unwrap();
+            if source < k {
+                let lag = dx
+                    .iter()
+                    .zip(dx_now)
+                    .map(|(a, b)| (a - b).abs())
+                    .fold(0.0, f64::max);
+                largest_lag_effect = largest_lag_effect.max(lag / scale);
+            }
+            bg.apply_displacement(&dx).unwrap();
         }
-        let x = bg.positions().to_vec();
-        let dx = bg.free_motion(&f).unwrap().to_vec();
-        ages.push(bg.factor_age().unwrap());
-        assert!(bg.rotation_change() <= LAG_ROTATION_LIMIT);
-        // The matrix used: the current positions' on step 0 (no factor yet) and step 8
-        // (requested); the previous positions' otherwise (on step 1, step 0's factor is still
-        // in use as nothing was in flight).
-        let lagged = !matches!(k, 0 | 8);
-        by_hand
-            .positions_mut()
-            .copy_from_slice(if lagged { &previous } else { &x });
-        by_hand.refactor().unwrap();
-        by_hand.positions_mut().copy_from_slice(&x);
-        let f_int = by_hand.compute_internal_forces().to_vec();
-        let mut expected: Vec<f64> = f.iter().zip(&f_int).map(|(a, b)| a - b).collect();
-        by_hand.solve(&mut expected).unwrap();
-        let scale = expected.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-        let err = dx
-            .iter()
-            .zip(&expected)
-            .map(|(a, b)| (a - b).abs())
-            .fold(0.0, f64::max);
-        assert!(
-            err <= 1e-10 * scale,
-            "step {k}: background free motion differs from the hand-made one by {err:e} mm (scale {scale:e})"
+        println!(
+            "every {every}: factor ages {ages:?}; largest relative effect of the lag {largest_lag_effect:e}"
         );
-        // Against the current matrix: the lag changes the step (it must, for this test to
-        // mean anything).
-        sync.positions_mut().copy_from_slice(&x);
-        let dx_now = sync.free_motion(&f).unwrap();
-        let lag = dx
-            .iter()
-            .zip(dx_now)
-            .map(|(a, b)| (a - b).abs())
-            .fold(0.0, f64::max);
-        if lagged && k > 1 {
-            largest_lag_effect = largest_lag_effect.max(lag / scale);
-        }
-        previous = x;
-        bg.apply_displacement(&dx).unwrap();
+        assert_eq!(ages, expected_ages);
+        assert!(
+            largest_lag_effect > 1e-6,
+            "the lag had no effect: the test is void"
+        );
+        let (adopted, immediate) = bg.background_counts().unwrap();
+        assert_eq!(immediate, 2, "the first step and the request");
+        assert!(adopted >= 12 / every as u64 - 2, "{adopted} adopted");
+        same_equilibrium(&mut bg, &f, &params);
     }
-    println!("factor ages {ages:?}; largest relative effect of the lag {largest_lag_effect:e}");
-    assert_eq!(ages, vec![0, 1, 0, 0, 0, 0, 0, 0, 0, 1, 0, 0]);
-    assert!(
-        largest_lag_effect > 1e-6,
-        "the lag had no effect: the test is void"
-    );
-    assert_eq!(bg.background_counts(), Some((9, 2)));
-    same_equilibrium(&mut bg, &f, &params);
 }
 
 /// A load that rotates elements by more than [`LAG_ROTATION_LIMIT`] per step: with the
-/// previous step's matrix throughout, these steps diverged (to 1e156 mm); the steps over the
-/// limit factorise at once, and the equilibrium is the one of the current matrix.
+/// previous step's matrix throughout, these steps diverged (to 1e156 mm); the steps whose
+/// elements rotated past the limit since the matrix in use factorise at once (with a pipeline
+/// of 1 and of 3 steps), and the equilibrium is the one of the current matrix.
 #[test]
 fn background_factorisation_factorises_at_once_when_elements_rotate_far() {
-    let (mesh, bottom, params) = background_box();
-    let mut bg = GelModel::try_new(
-        mesh,
-        &bottom,
-        &GelParams {
-            background_factorization: true,
-            ..params
-        },
-    )
-    .unwrap();
-    let f = gravity_like_load(&bg, -2e-2);
-    let mut largest = 0.0f64;
-    for _ in 0..400 {
-        let dx = bg.free_motion(&f).unwrap().to_vec();
-        largest = largest.max(bg.rotation_change());
-        bg.apply_displacement(&dx).unwrap();
+    for every in [1, 3] {
+        let (mesh, bottom, params) = background_box();
+        let mut bg = GelModel::try_new(
+            mesh,
+            &bottom,
+            &GelParams {
+                background_factorization: true,
+                refactor_every: every,
+                ..params
+            },
+        )
+        .unwrap();
+        let f = gravity_like_load(&bg, -2e-2);
+        let mut largest = 0.0f64;
+        for _ in 0..400 {
+            let dx = bg.free_motion(&f).unwrap().to_vec();
+            largest = largest.max(bg.rotation_change());
+            assert!(bg.lag_rotation() <= LAG_ROTATION_LIMIT);
+            bg.apply_displacement(&dx).unwrap();
+        }
+        let (adopted, immediate) = bg.background_counts().unwrap();
+        println!(
+            "every {every}: largest rotation per step {largest:.3} rad; {adopted} in the background, {immediate} at once"
+        );
+        assert!(largest > LAG_ROTATION_LIMIT);
+        assert!(immediate > 1 && adopted > 1);
+        same_equilibrium(&mut bg, &f, &params);
     }
-    let (adopted, immediate) = bg.background_counts().unwrap();
-    println!(
-        "largest rotation per step {largest:.3} rad; {adopted} in the background, {immediate} at once"
-    );
-    assert!(largest > LAG_ROTATION_LIMIT);
-    assert!(immediate > 1 && adopted > 1);
-    same_equilibrium(&mut bg, &f, &params);
 }
 
 /// A 40 × 20 × 20 mm box of 6 × 3 × 3 cells with its bottom nodes (to clamp).

@@ -232,6 +232,10 @@ fn print_summary(s: &RunSummary, json: bool) -> ExitCode {
             t.correction.p99_ms
         );
         println!(
+            "mean time per step: {:.2} ms (FM {:.2} · CC {:.2})",
+            t.total.mean_ms, t.fm.mean_ms, t.cc.mean_ms
+        );
+        println!(
             "Gauss-Seidel sweeps per step: mean {:.1}, max {} ({} steps hit the cap)",
             s.gs_iterations_mean, s.gs_iterations_max, s.gs_not_converged_steps
         );
@@ -242,7 +246,7 @@ fn print_summary(s: &RunSummary, json: bool) -> ExitCode {
         );
         if s.background_factorizations + s.immediate_factorizations > 0 {
             println!(
-                "gel factorisations: {} on the background thread (used one step later), {} at once",
+                "gel factorisations: {} on the background thread, {} at once",
                 s.background_factorizations, s.immediate_factorizations
             );
         }

@@ -266,6 +266,11 @@ impl CorotationalTetra {
         &self.rotations[e]
     }
 
+    /// Current rotations of every element (world ← rest).
+    pub fn rotations(&self) -> &[Matrix3<f64>] {
+        &self.rotations
+    }
+
     /// Rest stiffness `K0_e` as a full 12×12 matrix [N/mm] (dof order: node-major, xyz).
     pub fn rest_stiffness(&self, e: usize) -> SMatrix<f64, 12, 12> {
         self.full_matrix(e, &Matrix3::identity())

@@ -350,13 +350,24 @@ pub struct SolverSpec {
     /// Time step h of the quasi-static implicit step (mass term M/h²) [s].
     #[serde(default = "default_h")]
     pub time_step: f64,
-    /// Refactorise the gel's stiffness every this many steps (1 = every step).
-    #[serde(default = "default_refactor")]
-    pub refactor_every: u32,
-    /// Factorise the gel's stiffness on a second thread while the step goes on, and use it
-    /// from the next step (the Newton matrix is then one step old).
+    /// Factorise the gel's stiffness every this many steps; with the background
+    /// factorisation, the depth of its pipeline (a matrix is factorised while this many steps
+    /// run, then used for as many). Unset: [`SolverSpec::refactor_every`] picks 2 with the
+    /// background factorisation, 1 (every step, the paper's) without.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub refactor_every: Option<u32>,
+    /// Factorise the gel's stiffness on a second thread while the steps go on, and use it
+    /// `refactor_every` steps later (the Newton matrix is then a few steps old).
     #[serde(default = "default_background")]
     pub background_factorization: bool,
+}
+
+impl SolverSpec {
+    /// `refactor_every` as set, or its default: 2 with the background factorisation, 1 without.
+    pub fn refactor_every(&self) -> u32 {
+        self.refactor_every
+            .unwrap_or(if self.background_factorization { 2 } else { 1 })
+    }
 }
 
 impl Default for SolverSpec {
@@ -365,7 +376,7 @@ impl Default for SolverSpec {
             gs_tolerance: default_gs_tol(),
             gs_max_iterations: default_gs_iter(),
             time_step: default_h(),
-            refactor_every: default_refactor(),
+            refactor_every: None,
             background_factorization: default_background(),
         }
     }
@@ -583,9 +594,6 @@ fn default_background() -> bool {
     true
 }
 
-fn default_refactor() -> u32 {
-    1
-}
 fn default_samples() -> usize {
     201
 }

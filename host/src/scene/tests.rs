@@ -215,6 +215,27 @@ fn overrides_set_dotted_fields_and_are_validated() {
 }
 
 #[test]
+fn factorisation_defaults_follow_the_mode() {
+    let s = Scene::builtin("complex").unwrap();
+    assert!(s.solver.background_factorization);
+    assert_eq!(s.solver.refactor_every, None);
+    assert_eq!(s.solver.refactor_every(), 2);
+    let set = |o: &[(&str, &str)]| {
+        let o: Vec<(String, String)> = o
+            .iter()
+            .map(|(a, b)| (a.to_string(), b.to_string()))
+            .collect();
+        s.with_overrides(&o)
+    };
+    let sync = set(&[("solver.background_factorization", "false")]).unwrap();
+    assert_eq!(sync.solver.refactor_every(), 1, "the paper's: every step");
+    let three = set(&[("solver.refactor_every", "3")]).unwrap();
+    assert_eq!(three.solver.refactor_every(), 3);
+    let e = set(&[("solver.refactor_every", "0")]).unwrap_err();
+    assert_eq!(e.field, "solver.refactor_every");
+}
+
+#[test]
 fn start_joints_and_insertion_mode_are_checked_and_used() {
     let e = err_of(&format!(
         "{MINIMAL}\n[robot]\nstart_joints_deg = [0.0, 60.0, 120.0, 0.0, 95.0, 0.0]\n"

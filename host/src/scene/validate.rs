@@ -243,7 +243,7 @@ impl Scene {
             return fail("solver.gs_max_iterations", "must be ≥ 1");
         }
         positive("solver.time_step", s.time_step, "[s]")?;
-        if s.refactor_every == 0 {
+        if s.refactor_every == Some(0) {
             return fail("solver.refactor_every", "must be ≥ 1");
         }
 
