@@ -42,7 +42,7 @@
 #![allow(clippy::neg_cmp_op_on_partial_ord, clippy::nonminimal_bool)]
 
 use crate::fem::beam::{self, BeamSection, CorotationalBeams};
-use crate::fem::tetra::{self, CorotationalTetra, Kinematics};
+use crate::fem::tetra::{self, CorotationalTetra, Kinematics, largest_rotation_between};
 use crate::fem::{Elasticity, FemError};
 use crate::linalg::{
     Cholesky, LinalgError, SymmetricMatrix, SymmetricPattern, nested_dissection_order,
@@ -89,7 +89,6 @@ enum Adopted {
 /// What a step's free motion did with the factors (background mode).
 #[derive(Clone, Copy, Debug, Default)]
 struct FactorEvent {
-    adopted: Adopted,
     /// The step factorised its own matrix at once.
     immediate: bool,
     /// The step's matrix was sent to the worker.
@@ -252,18 +251,29 @@ impl ReducedSystem {
         }
     }
 
-    /// Adds the regularisation `M/h²` to the diagonal of the assembled values.
-    fn add_regularization(&mut self) {
-        for (k, &s) in self.diag_slots.iter().enumerate() {
-            self.matrix.values[s] += self.regularization[k];
+    /// Writes `matrix`'s values: zero, the elements' contributions through `write`, then the
+    /// regularisation `M/h²` on the diagonal.
+    fn write_into(
+        matrix: &mut SymmetricMatrix,
+        diag_slots: &[usize],
+        regularization: &[f64],
+        write: impl FnOnce(&mut [f64]),
+    ) {
+        matrix.fill_zero();
+        write(&mut matrix.values);
+        for (&s, &r) in diag_slots.iter().zip(regularization) {
+            matrix.values[s] += r;
         }
     }
 
     /// Writes the matrix values: zero, the elements' contributions through `write`, `M/h²`.
     fn write_values(&mut self, write: impl FnOnce(&mut [f64])) {
-        self.matrix.fill_zero();
-        write(&mut self.matrix.values);
-        self.add_regularization();
+        Self::write_into(
+            &mut self.matrix,
+            &self.diag_slots,
+            &self.regularization,
+            write,
+        );
     }
 
     /// Background mode, start of a step: counts the steps of the job in flight and, once it is
@@ -299,11 +309,12 @@ impl ReducedSystem {
         let Some(bg) = self.background.as_mut() else {
             return;
         };
-        bg.staged.fill_zero();
-        write(&mut bg.staged.values);
-        for (k, &s) in self.diag_slots.iter().enumerate() {
-            bg.staged.values[s] += self.regularization[k];
-        }
+        Self::write_into(
+            &mut bg.staged,
+            &self.diag_slots,
+            &self.regularization,
+            write,
+        );
     }
 
     /// Background mode: makes the staged matrix the one to factorise at once.
@@ -359,8 +370,8 @@ impl ReducedSystem {
             if will_submit {
                 self.stage_background(&write);
             }
-            event.adopted = self.adopt_background()?;
-            match event.adopted {
+            let adopted = self.adopt_background()?;
+            match adopted {
                 Adopted::Yes => self.factor_age = Some(0),
                 Adopted::Idle => {
                     if let Some(age) = self.factor_age.as_mut() {
@@ -369,7 +380,7 @@ impl ReducedSystem {
                 }
                 Adopted::Failed => self.factor_age = None,
             }
-            let in_use_ok = self.factor_age.is_some() && lag_ok(event.adopted);
+            let in_use_ok = self.factor_age.is_some() && lag_ok(adopted);
             if !in_use_ok || self.refactor_requested {
                 // No factor yet, a request, a failed background factorisation, or elements
                 // that rotated too far since the matrix in use: factorise now.
@@ -548,24 +559,11 @@ pub struct GelModel {
     slots: Vec<u32>,
     f_int: Vec<f64>,
     dx: Vec<f64>,
-    rotation_change: f64,
     /// Background mode: the element rotations of the matrix of the factor in use, and of the
     /// matrix being factorised.
     rotations_in_use: Vec<Matrix3<f64>>,
     rotations_sent: Vec<Matrix3<f64>>,
     lag_rotation: f64,
-}
-
-/// The largest angle between corresponding rotations of `a` and `b` [rad]
-/// (`‖R − R'‖_F = 2√2 sin(θ/2)`).
-fn largest_rotation_between(a: &[Matrix3<f64>], b: &[Matrix3<f64>]) -> f64 {
-    let largest = a
-        .iter()
-        .zip(b)
-        .map(|(r, s)| (r - s).norm_squared())
-        .fold(0.0f64, f64::max);
-    let chord = (largest.sqrt() / (2.0 * core::f64::consts::SQRT_2)).min(1.0);
-    2.0 * chord.asin()
 }
 
 impl GelModel {
@@ -645,7 +643,6 @@ impl GelModel {
             slots,
             f_int: vec![0.0; 3 * n],
             dx: vec![0.0; 3 * n],
-            rotation_change: 0.0,
             rotations_in_use: if params.background_factorization {
                 vec![Matrix3::identity(); tetra_len]
             } else {
@@ -731,16 +728,11 @@ impl GelModel {
     /// Updates the element rotations and returns the internal forces `f_int(x)` at the current
     /// positions (3 per node, including at fixed nodes, where they are the reactions) [N].
     pub fn compute_internal_forces(&mut self) -> &[f64] {
-        self.rotation_change = self.tetra.update_rotations(&self.positions);
+        self.tetra.update_rotations(&self.positions);
         self.f_int.iter_mut().for_each(|v| *v = 0.0);
         self.tetra
             .add_internal_forces(&self.positions, &mut self.f_int);
         &self.f_int
-    }
-
-    /// The largest rotation of an element between the last two corotational updates [rad].
-    pub fn rotation_change(&self) -> f64 {
-        self.rotation_change
     }
 
     /// Background mode: the largest rotation of an element between the matrix of the factor the

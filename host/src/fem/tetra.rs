@@ -156,6 +156,19 @@ pub fn rotation_from_deformation_svd(f: &Matrix3<f64>) -> Matrix3<f64> {
     u0 * v0.transpose() + u1 * v1.transpose() + u2 * v2.transpose()
 }
 
+/// The largest angle between corresponding rotations of `a` and `b` [rad], from
+/// `‖R − R'‖_F = 2√2 sin(θ/2)` (e.g. element rotations at two times: the corotational tangent
+/// `R K0 Rᵀ` changes only through them).
+pub fn largest_rotation_between(a: &[Matrix3<f64>], b: &[Matrix3<f64>]) -> f64 {
+    let largest = a
+        .iter()
+        .zip(b)
+        .map(|(r, s)| (r - s).norm_squared())
+        .fold(0.0f64, f64::max);
+    let chord = (largest.sqrt() / (2.0 * core::f64::consts::SQRT_2)).min(1.0);
+    2.0 * chord.asin()
+}
+
 /// See [`CorotationalTetra::strain_stats`].
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct StrainStats {
@@ -338,23 +351,15 @@ impl CorotationalTetra {
         out
     }
 
-    /// Updates every element rotation from the positions `x` [mm] (no-op for [`Kinematics::Linear`])
-    /// and returns the largest rotation of an element since the previous update [rad] (the
-    /// tangent `R K0 Rᵀ` changes only through these: it bounds how much an older matrix is off).
-    pub fn update_rotations(&mut self, x: &[Vector3<f64>]) -> f64 {
+    /// Updates every element rotation from the positions `x` [mm] (no-op for [`Kinematics::Linear`]).
+    pub fn update_rotations(&mut self, x: &[Vector3<f64>]) {
         if self.kinematics == Kinematics::Linear {
-            return 0.0;
+            return;
         }
-        let mut largest = 0.0f64;
         for e in 0..self.tets.len() {
             let f = self.deformation_gradient(e, x);
-            let r = rotation_from_deformation(&f);
-            // ‖R − R_old‖_F = 2√2 sin(θ/2) for the relative rotation angle θ.
-            largest = largest.max((r - self.rotations[e]).norm_squared());
-            self.rotations[e] = r;
+            self.rotations[e] = rotation_from_deformation(&f);
         }
-        let chord = (largest.sqrt() / (2.0 * core::f64::consts::SQRT_2)).min(1.0);
-        2.0 * chord.asin()
     }
 
     /// Internal force of element `e` at positions `x` with the current rotation, node-major [N].
