@@ -14,6 +14,7 @@ pub mod inverse;
 pub mod kinematics;
 mod math;
 pub mod payload;
+pub mod qp;
 pub mod reduce;
 pub mod synthetic;
 
