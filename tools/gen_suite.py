@@ -23,14 +23,17 @@ counted and printed with its reason. The checks:
 - each obstacle lies wholly inside the gel and leaves a gap of at least the needle radius +
   MIN_GAP_OVER_RADIUS (so the needle can pass) and at most MAX_GAP (1.5 mm) between the rest path
   (the needle's centre line) and its surface; obstacles do not touch each other;
-- the needle does not buckle before it punctures the surface (Euler load of its free length,
+- the needle does not buckle before it punctures the surface (Euler load of the whole needle,
   pinned-pinned, at least BUCKLING_SAFETY x the puncture force), and is long enough that its base
   (the flange) stays at least FLANGE_CLEARANCE above the gel's top face at the end of the path;
 - the robot (RV-1A, base at the origin) reaches the start pose from mid-range with the same damped
   least-squares IK as the project (needle-core `solve_ik`), every joint at least
-  START_LIMIT_MARGIN inside its limits, and reaches a rigid needle's pose along the whole rest
-  path (tip on the path, needle along its tangent: the naive baseline's poses), every joint at
-  least PATH_LIMIT_MARGIN inside its limits.
+  START_LIMIT_MARGIN inside its limits, and from there reaches the poses of the needle pivoting
+  about the entry point along the whole path (the needle's axis from the entry point to the path
+  point, the rest of its length outside: the inverse controller's angular objective once
+  inserted), every joint at least PATH_LIMIT_MARGIN inside its limits. When the project's start
+  fails this, the IK from other seeds (the wrist turned) is tried, and the passing start farthest
+  from the limits is written into the scene as `robot.start_joints_deg`.
 
 The puncture force is scaled from the benchmark's 0.2 N (Ø 1 mm needle, 20 kPa gel) with the
 needle diameter and the square root of the gel's Young modulus (a stiffer gel and a thicker needle
@@ -699,12 +702,14 @@ def start_seeds():
 
 def robot_start(sc, t0, length):
     """The start joints: the project's IK from mid-range when that start is at least
-    START_LIMIT_MARGIN inside the limits and the path can be followed from it, else the IK from
-    the first other seed whose start and path pass (written into the scene as start_joints_deg).
+    START_LIMIT_MARGIN inside the limits and the path can be followed from it; else, of the IK
+    solutions from the other seeds whose start and path pass, the one that stays farthest from
+    the joint limits (written into the scene as start_joints_deg).
     Returns (joints [deg] or None for the project's own IK, the path's joint margin, a note)."""
     tip0 = sub(sc.pts[0], mul(t0, APPROACH))
     base0 = sub(tip0, mul(t0, sc.needle_l))
     first = None
+    best = None
     for k, seed in enumerate(start_seeds()):
         q, perr, ang = solve_ik(base0, t0, seed)
         if not (perr <= 1e-3 and ang <= 1e-4):
@@ -721,10 +726,19 @@ def robot_start(sc, t0, length):
                 else:
                     if k == 0:
                         return None, worst, "the project's IK from mid-range"
-                    return [math.degrees(v) for v in q], worst, f"the project's IK from mid-range: {first}; IK from J4 = {math.degrees(seed[3]):.0f}, J5 = {math.degrees(seed[4]):.0f} deg instead"
+                    if best is None or worst > best[0]:
+                        best = (worst, q, seed)
+                    continue
         if first is None:
             first = why
-    raise Reject(first)
+    if best is None:
+        raise Reject(first)
+    worst, q, seed = best
+    note = (
+        f"the project's IK from mid-range: {first}; IK from J4 = {math.degrees(seed[3]):.0f}, "
+        f"J5 = {math.degrees(seed[4]):.0f} deg instead (the passing start farthest from the limits)"
+    )
+    return [math.degrees(v) for v in q], worst, note
 
 
 # ---------------------------------------------------------------------------------------------
