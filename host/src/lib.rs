@@ -9,6 +9,7 @@ pub mod linalg;
 pub mod mesh;
 pub mod output;
 pub mod proximity;
+pub mod replay;
 pub mod report;
 pub mod run;
 pub mod scene;
