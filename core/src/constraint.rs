@@ -98,6 +98,31 @@ pub struct BlockGs<const M: usize> {
     active: [u8; M],
 }
 
+crate::zeroed::impl_zeroable!(GsParams {
+    tolerance,
+    max_iterations,
+    polish,
+    relaxation
+});
+crate::zeroed::impl_zeroable!(Block {
+    kind,
+    len,
+    start,
+    mu,
+    r0
+});
+crate::zeroed::impl_zeroable!(BlockGs<const M> {
+    m,
+    n_blocks,
+    frictional,
+    blocks,
+    factors,
+    diag,
+    w,
+    scratch,
+    active,
+});
+
 impl<const M: usize> Default for BlockGs<M> {
     fn default() -> Self {
         Self::new()
@@ -797,6 +822,19 @@ pub struct ActiveSet<const M: usize> {
     response: [[f64; BASE]; M],
     x: [f64; M],
 }
+
+crate::zeroed::impl_zeroable!(Tied { row, lat, c });
+crate::zeroed::impl_zeroable!(ActiveSet<const M> {
+    n,
+    n_tied,
+    valid,
+    rows,
+    perm,
+    tied,
+    lu,
+    response,
+    x,
+});
 
 impl<const M: usize> Default for ActiveSet<M> {
     fn default() -> Self {

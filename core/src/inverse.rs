@@ -50,14 +50,18 @@ use nalgebra::{Matrix3, Matrix4, SMatrix, SVector, Vector3, Vector4};
 /// Sweeps after which a reduced solve that has not converged is polished on its active set.
 const POLISH_AFTER: u32 = 60;
 
-/// How the 6 Jacobian columns are obtained.
+/// How the Jacobian columns are obtained.
+///
+/// `#[repr(u8)]` with `Solve = 0`, so that a zeroed [`InverseParams`] (inside a controller built
+/// in place) holds a valid mode.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[repr(u8)]
 pub enum JacobianMode {
     /// The paper's eq. 14: a full constraint solve at each `q + δq e_i` (Gauss-Seidel, W fixed).
     /// Exact finite differences of the constrained simulation — including the contacts that
     /// open or close within the perturbation, which with `δq = 0.01 rad` (several mm at the
     /// needle base) makes `J` jump at the moment the tip touches the surface.
-    Solve,
+    Solve = 0,
     /// The same solve with the active set of the base solve frozen (rows at a bound stay there,
     /// free rows stay free, sliding friction stays saturated): a direct solve of the linearised
     /// problem, i.e. the exact one-sided derivative of `T` at `q` evaluated at the same `δq`.
@@ -118,6 +122,27 @@ pub struct InverseParams {
     /// own truncation error (of order `δq`). The base and final solves use `gs.tolerance`.
     pub jacobian_tolerance: f64,
 }
+
+// SAFETY: `#[repr(u8)]` and the variant `Solve` has the discriminant 0.
+unsafe impl crate::zeroed::Zeroable for JacobianMode {}
+
+crate::zeroed::impl_zeroable!(InverseParams {
+    joint_step,
+    blend_depth,
+    angle_weight,
+    damping,
+    damping_max,
+    singular_threshold,
+    tolerance,
+    gs,
+    warm_start,
+    active_set,
+    presolve_tolerance,
+    eliminate_base,
+    max_base_step,
+    jacobian,
+    jacobian_tolerance,
+});
 
 impl Default for InverseParams {
     fn default() -> Self {
@@ -312,8 +337,9 @@ pub fn evaluate_objective<const M: usize>(
 /// factors, the active-set factor, λ buffers), so that [`Self::step`] allocates nothing. `M` is
 /// the row capacity.
 ///
-/// About `8 M² + 100 M` bytes (≈ 310 KiB at `M = 192`) because of the dense active-set factor:
-/// build it in place with [`Self::init_in_place`] in a `static` or a `Box`, not on a small stack.
+/// About `16 M²` bytes (≈ 660 KiB at `M = 192`) because of the dense active-set factor and the
+/// reduced `W`: build it in place, with [`Self::init_in_place`] in a `static` or with `new_boxed`
+/// (feature `alloc`) on the heap, not on a small stack.
 #[derive(Clone, Debug)]
 pub struct Controller<const M: usize> {
     /// The robot (DH chain, limits, base and tool transforms).
@@ -334,6 +360,24 @@ pub struct Controller<const M: usize> {
     lr_work: [f64; M],
     gs_full: BlockGs<M>,
 }
+
+crate::zeroed::impl_zeroable!(Controller<const M> {
+    chain,
+    params,
+    gs,
+    delta,
+    lambda_base,
+    lambda_work,
+    lambda_prev,
+    prev_m,
+    set,
+    set_valid,
+    delta_base,
+    red,
+    lr_base,
+    lr_work,
+    gs_full,
+});
 
 impl<const M: usize> Controller<M> {
     const CAPACITY_OK: () = assert!(
@@ -363,25 +407,39 @@ impl<const M: usize> Controller<M> {
         }
     }
 
-    /// Initialises a controller in place (no stack temporary) and returns it.
+    /// Initialises a controller in place (no stack temporary) and returns it: all scratch
+    /// zero, no warm start, `chain` and `params` set.
     pub fn init_in_place(
         this: &mut core::mem::MaybeUninit<Self>,
         chain: DhChain<JOINTS>,
         params: InverseParams,
     ) -> &mut Self {
+        crate::zeroed::zeroed_in_place(this).configure(chain, params)
+    }
+
+    /// A controller on the heap in the state of [`Self::init_in_place`], built there (never on
+    /// the stack).
+    ///
+    /// # Example
+    /// ```
+    /// use needle_core::{Controller, DhChain, InverseParams};
+    ///
+    /// let ctrl = Controller::<192>::new_boxed(DhChain::rv1a(), InverseParams::default());
+    /// assert_eq!(ctrl.chain, DhChain::rv1a());
+    /// ```
+    #[cfg(feature = "alloc")]
+    pub fn new_boxed(chain: DhChain<JOINTS>, params: InverseParams) -> alloc::boxed::Box<Self> {
+        let mut b = crate::zeroed::boxed_zeroed::<Self>();
+        b.configure(chain, params);
+        b
+    }
+
+    /// Sets the robot and the tuning of a zeroed controller.
+    fn configure(&mut self, chain: DhChain<JOINTS>, params: InverseParams) -> &mut Self {
         let () = Self::CAPACITY_OK;
-        let p = this.as_mut_ptr();
-        // SAFETY: every field of `Controller` (and of `BlockGs`, `ActiveSet`, `DhChain`,
-        // `InverseParams`) is a float, an integer, a `bool` or an array/struct of those, for which
-        // all-zero bytes are a valid value (`false`, `0`, `0.0`); the two fields written after are
-        // then overwritten through raw pointers without reading the old value. `p` comes from a
-        // live `&mut MaybeUninit<Self>`, so it is valid and aligned.
-        unsafe {
-            core::ptr::write_bytes(p, 0, 1);
-            core::ptr::addr_of_mut!((*p).chain).write(chain);
-            core::ptr::addr_of_mut!((*p).params).write(params);
-            this.assume_init_mut()
-        }
+        self.chain = chain;
+        self.params = params;
+        self
     }
 
     /// Forgets the previous step's `λ` (next step starts the solver from zero).
@@ -953,25 +1011,21 @@ fn smallest_eigenvalue(a: &Matrix4<f64>) -> f64 {
 mod tests {
     use super::*;
     use crate::synthetic::rigid_needle_frame;
-    use std::boxed::Box;
-    use std::mem::MaybeUninit;
 
     #[test]
     fn rigid_needle_newton_converges() {
         let chain = DhChain::rv1a();
-        let mut fm = Box::new(MaybeUninit::<ComplianceFrame<12>>::uninit());
-        let frame = ComplianceFrame::init_in_place(&mut fm);
-        let mut cm = Box::new(MaybeUninit::<Command<12>>::uninit());
-        let cmd = Command::init_in_place(&mut cm);
+        let mut frame = ComplianceFrame::<12>::new_boxed();
+        let mut cmd = Command::<12>::new_boxed();
         let q_target = [0.2, 0.35, 2.0, 0.1, 0.6, -0.2];
         let q_free = [0.25, 0.3, 2.05, 0.05, 0.55, -0.25];
-        rigid_needle_frame(frame, &chain, &q_free, &q_target, 120.0);
-        let mut ctrl = Controller::<12>::new(chain, InverseParams::default());
+        rigid_needle_frame(&mut frame, &chain, &q_free, &q_target, 120.0);
+        let mut ctrl = Controller::<12>::new_boxed(chain, InverseParams::default());
         let mut q = q_free;
         let mut last = f64::INFINITY;
         for _ in 0..8 {
             frame.q = q;
-            let rep = ctrl.step(frame, cmd).expect("valid");
+            let rep = ctrl.step(&frame, &mut cmd).expect("valid");
             let n = Vector4::from(rep.objective).norm();
             std::println!(
                 "{:?} |T| {n:e} flags {:#x} sweeps {}",

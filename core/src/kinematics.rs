@@ -18,6 +18,11 @@ pub struct Pose {
     pub translation: Vector3<f64>,
 }
 
+crate::zeroed::impl_zeroable!(Pose {
+    rotation,
+    translation
+});
+
 impl Pose {
     /// The identity transform.
     pub fn identity() -> Self {
@@ -82,6 +87,13 @@ pub struct DhJoint {
     pub alpha: f64,
 }
 
+crate::zeroed::impl_zeroable!(DhJoint {
+    theta_offset,
+    d,
+    a,
+    alpha
+});
+
 impl DhJoint {
     /// The link transform `Rz(q + θ) Tz(d) Tx(a) Rx(α)` for joint value `q` [rad].
     #[inline]
@@ -105,6 +117,12 @@ pub struct JointLimit {
     /// Largest joint speed magnitude [rad/s].
     pub max_speed: f64,
 }
+
+crate::zeroed::impl_zeroable!(JointLimit {
+    lower,
+    upper,
+    max_speed
+});
 
 impl JointLimit {
     /// Limits given in degrees and degrees per second.
@@ -135,6 +153,13 @@ pub struct DhChain<const N: usize> {
     /// Flange ← needle base, `T_EB` [mm]; identity: the needle starts at the flange along its z axis.
     pub tool: Pose,
 }
+
+crate::zeroed::impl_zeroable!(DhChain<const N> {
+    joints,
+    limits,
+    base,
+    tool
+});
 
 /// The Mitsubishi RV-1A of DESIGN.md (6 joints).
 pub type Rv1a = DhChain<6>;

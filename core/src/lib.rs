@@ -8,6 +8,9 @@
 // Index loops over several parallel fixed arrays read better than zipped iterators here.
 #![allow(clippy::needless_range_loop)]
 
+#[cfg(feature = "alloc")]
+extern crate alloc;
+
 pub mod constraint;
 pub mod ik;
 pub mod inverse;
@@ -17,6 +20,7 @@ pub mod payload;
 pub mod qp;
 pub mod reduce;
 pub mod synthetic;
+pub mod zeroed;
 
 pub use constraint::{ActiveSet, BlockGs, GsParams, SolveReport};
 pub use ik::{IkError, IkParams, IkReport, solve_ik};
@@ -26,3 +30,6 @@ pub use payload::{
     Command, ComplianceFrame, GroupKind, NOBS, ObsIndex, RowGroup, SolverReport, StatusFlags,
     VERSION, ValidationError,
 };
+#[cfg(feature = "alloc")]
+pub use zeroed::boxed_zeroed;
+pub use zeroed::{Zeroable, zeroed_in_place};

@@ -12,6 +12,7 @@
 //! `p_free`, `r_free` and the robot's forward kinematics:
 //! `δ_0..3(q) = p_B(q) − p_free`, `δ_3..6(q) = log(R_B(q) R_freeᵀ)`.
 
+use crate::zeroed::{zero_out, zeroed_in_place};
 use core::fmt;
 use core::mem::MaybeUninit;
 
@@ -378,8 +379,8 @@ pub fn validate_compliance<const M: usize>(
 /// One compliance frame: everything the core needs for one inverse step (host → core).
 ///
 /// `M` is the row capacity; only the first `m` rows/columns of the arrays are used. At `M = 192`
-/// a frame is about 300 KiB: never build one on the stack, use [`Self::init_in_place`] on storage
-/// you own (a `static`, a `Box`, a shared-memory sample).
+/// a frame is about 320 KiB: never build one on the stack, use [`Self::init_in_place`] on storage
+/// you own (a `static`, a shared-memory sample) or `new_boxed` (feature `alloc`).
 #[derive(Clone, Copy, Debug)]
 #[repr(C)]
 pub struct ComplianceFrame<const M: usize> {
@@ -416,32 +417,79 @@ pub struct ComplianceFrame<const M: usize> {
     pub dt: f64,
 }
 
+crate::zeroed::impl_zeroable!(RowGroup {
+    kind,
+    start,
+    len,
+    reserved,
+    mu,
+    r0
+});
+crate::zeroed::impl_zeroable!(ComplianceFrame<const M> {
+    version,
+    m,
+    sequence,
+    group_count,
+    inserted,
+    groups,
+    w,
+    delta_free,
+    p_free,
+    r_free,
+    o_free,
+    c,
+    insertion_depth,
+    q,
+    dt,
+});
+
 impl<const M: usize> ComplianceFrame<M> {
     /// Initialises a frame in place: all zero, `version = VERSION`. Returns the initialised frame.
     ///
-    /// Use it on storage you own so that the (large) frame never transits the stack:
-    /// `let mut b = Box::new_uninit(); let f = ComplianceFrame::<192>::init_in_place(&mut b);`.
+    /// Use it on storage you own so that the (large) frame never transits the stack (a
+    /// `static`, a shared-memory sample); on the heap, [`Self::new_boxed`] does it for you.
+    ///
+    /// # Example
+    /// ```
+    /// use core::mem::MaybeUninit;
+    /// use needle_core::{ComplianceFrame, VERSION};
+    ///
+    /// static mut FRAME: MaybeUninit<ComplianceFrame<16>> = MaybeUninit::uninit();
+    /// // SAFETY (of this example): the only borrow of the static.
+    /// let frame = ComplianceFrame::init_in_place(unsafe { &mut *(&raw mut FRAME) });
+    /// assert_eq!((frame.version, frame.m), (VERSION, 0));
+    /// ```
     pub fn init_in_place(this: &mut MaybeUninit<Self>) -> &mut Self {
-        // SAFETY: every field is an integer, a float or an array of those (RowGroup included), for
-        // which the all-zero bit pattern is a valid value; the pointer comes from a live
-        // `&mut MaybeUninit<Self>`, so it is valid and aligned for one `Self`.
-        unsafe {
-            core::ptr::write_bytes(this.as_mut_ptr(), 0, 1);
-        }
-        // SAFETY: fully initialised just above.
-        let f = unsafe { this.assume_init_mut() };
-        f.version = VERSION;
-        f
+        zeroed_in_place(this).stamp()
+    }
+
+    /// A frame on the heap in the state of [`Self::init_in_place`], built there (no stack copy).
+    ///
+    /// # Example
+    /// ```
+    /// use needle_core::{ComplianceFrame, ValidationError, VERSION};
+    ///
+    /// let frame = ComplianceFrame::<192>::new_boxed(); // ≈ 320 KiB
+    /// assert_eq!(frame.version, VERSION);
+    /// // All zero: too few rows to be a frame.
+    /// assert_eq!(frame.validate(), Err(ValidationError::TooFewRows { m: 0, min: 6 }));
+    /// ```
+    #[cfg(feature = "alloc")]
+    pub fn new_boxed() -> alloc::boxed::Box<Self> {
+        let mut b = crate::zeroed::boxed_zeroed::<Self>();
+        b.stamp();
+        b
     }
 
     /// Resets an existing frame to the state of [`Self::init_in_place`], without a stack copy.
     pub fn reset(&mut self) {
-        // SAFETY: `Self` is valid when all-zero (see `init_in_place`), and `self` is a live exclusive
-        // reference to one `Self`.
-        unsafe {
-            core::ptr::write_bytes(self as *mut Self, 0, 1);
-        }
+        zero_out(self).stamp();
+    }
+
+    /// Writes the layout version into a zeroed frame.
+    fn stamp(&mut self) -> &mut Self {
         self.version = VERSION;
+        self
     }
 
     /// Number of rows used, as `usize`.
@@ -610,27 +658,57 @@ pub struct Command<const M: usize> {
     pub report: SolverReport,
 }
 
+crate::zeroed::impl_zeroable!(SolverReport {
+    iterations,
+    solves,
+    flags,
+    final_iterations,
+    final_residual,
+    objective,
+    objective_after,
+    delta_q,
+});
+crate::zeroed::impl_zeroable!(Command<const M> {
+    version,
+    m,
+    frame_sequence,
+    q,
+    lambda,
+    report,
+});
+
 impl<const M: usize> Command<M> {
     /// Initialises a command in place: all zero, `version = VERSION`.
     pub fn init_in_place(this: &mut MaybeUninit<Self>) -> &mut Self {
-        // SAFETY: all fields are integers and floats, valid when all-zero; the pointer is valid and
-        // aligned for one `Self`.
-        unsafe {
-            core::ptr::write_bytes(this.as_mut_ptr(), 0, 1);
-        }
-        // SAFETY: fully initialised just above.
-        let c = unsafe { this.assume_init_mut() };
-        c.version = VERSION;
-        c
+        zeroed_in_place(this).stamp()
+    }
+
+    /// A command on the heap in the state of [`Self::init_in_place`], built there.
+    ///
+    /// # Example
+    /// ```
+    /// use needle_core::{Command, VERSION};
+    ///
+    /// let cmd = Command::<192>::new_boxed();
+    /// assert_eq!(cmd.version, VERSION);
+    /// assert_eq!(cmd.validate(), Ok(()));
+    /// ```
+    #[cfg(feature = "alloc")]
+    pub fn new_boxed() -> alloc::boxed::Box<Self> {
+        let mut b = crate::zeroed::boxed_zeroed::<Self>();
+        b.stamp();
+        b
     }
 
     /// Resets an existing command to the state of [`Self::init_in_place`].
     pub fn reset(&mut self) {
-        // SAFETY: as in `init_in_place`.
-        unsafe {
-            core::ptr::write_bytes(self as *mut Self, 0, 1);
-        }
+        zero_out(self).stamp();
+    }
+
+    /// Writes the layout version into a zeroed command.
+    fn stamp(&mut self) -> &mut Self {
         self.version = VERSION;
+        self
     }
 
     /// Checks a received command: version, `m ≤ M`, finite joints, forces and report.

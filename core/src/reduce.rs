@@ -37,6 +37,16 @@ pub struct BaseElimination<const M: usize> {
     pub delta: [f64; M],
 }
 
+crate::zeroed::impl_zeroable!(BaseElimination<const M> {
+    w,
+    s,
+    wbb_inv,
+    groups,
+    n_groups,
+    n,
+    delta,
+});
+
 impl<const M: usize> BaseElimination<M> {
     /// An empty reduction.
     pub const fn new() -> Self {

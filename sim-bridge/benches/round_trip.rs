@@ -14,7 +14,7 @@
 //! group the bench prints the median and p99 of 2000 timed round trips.
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use needle_bridge::shm::{command_service, create_node, frame_service};
+use needle_bridge::shm::{command_service, create_node, frame_service, loan_initialised};
 use needle_bridge::{
     BridgeConfig, CommandHeader, CommandKind, ControllerNode, ControllerOptions, InProcess,
     SharedMemoryHost, Transport, Wait, setup_fingerprint,
@@ -23,7 +23,6 @@ use needle_core::inverse::InverseParams;
 use needle_core::kinematics::DhChain;
 use needle_core::payload::{Command, ComplianceFrame};
 use needle_core::synthetic::random_frame;
-use std::mem::MaybeUninit;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
@@ -33,18 +32,13 @@ const ROWS_USED: usize = 120;
 const Q: [f64; 6] = [0.1, 0.3, 2.0, 0.0, 0.5, 0.0];
 
 fn frame() -> Box<ComplianceFrame<M>> {
-    let mut b = Box::<ComplianceFrame<M>>::new_uninit();
-    let f = ComplianceFrame::init_in_place(&mut b);
-    random_frame(f, &DhChain::rv1a(), &Q, ROWS_USED, 7, false);
-    // SAFETY: initialised by `init_in_place`.
-    unsafe { b.assume_init() }
+    let mut f = ComplianceFrame::new_boxed();
+    random_frame(&mut f, &DhChain::rv1a(), &Q, ROWS_USED, 7, false);
+    f
 }
 
 fn command() -> Box<Command<M>> {
-    let mut b = Box::<Command<M>>::new_uninit();
-    Command::init_in_place(&mut b);
-    // SAFETY: initialised by `init_in_place`.
-    unsafe { b.assume_init() }
+    Command::new_boxed()
 }
 
 fn config(tag: &str) -> BridgeConfig {
@@ -74,23 +68,17 @@ fn echo(cfg: BridgeConfig, stop: Arc<AtomicBool>, ready: Arc<AtomicBool>) {
         match sub.receive() {
             Ok(Some(s)) => {
                 let f = &s.payload().0;
-                let mut out = publ.loan_uninit().expect("loan");
-                *out.user_header_mut() = CommandHeader {
+                let header = CommandHeader {
                     session: s.user_header().session,
                     kind: CommandKind::Answer as u32,
                     reserved: 0,
                 };
-                // SAFETY: `CommandPayload<M>` is transparent over `Command<M>`.
-                let slot = unsafe {
-                    &mut *(out.payload_mut() as *mut MaybeUninit<_>)
-                        .cast::<MaybeUninit<Command<M>>>()
-                };
-                let c = Command::init_in_place(slot);
+                let mut out = loan_initialised(&publ, header, "loan").expect("loan");
+                let c = &mut out.payload_mut().0;
                 c.m = f.m;
                 c.frame_sequence = f.sequence;
                 c.q = f.q;
-                // SAFETY: initialised in place above.
-                unsafe { out.assume_init() }.send().expect("send");
+                out.send().expect("send");
             }
             _ => std::thread::yield_now(),
         }

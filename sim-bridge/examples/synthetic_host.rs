@@ -27,8 +27,7 @@ fn main() {
             .expect("host");
     let mut q = [0.1, 0.4, 2.0, 0.05, -0.6, 0.1];
     let target = [0.15, 0.45, 1.95, 0.0, -0.55, 0.1];
-    let mut cmd = Box::<Command<16>>::new_uninit();
-    let cmd = Command::init_in_place(&mut cmd);
+    let mut cmd = Command::<16>::new_boxed();
     let (mut first, mut last) = (None, 0.0);
     let mut waited = 0;
     let mut k = 0u64;
@@ -49,7 +48,7 @@ fn main() {
                     .sqrt();
             })
             .expect("publish");
-        match host.wait_command(seq, cmd) {
+        match host.wait_command(seq, &mut cmd) {
             Ok(_) => {
                 q = cmd.q;
                 first.get_or_insert(err);

@@ -21,11 +21,11 @@
 use crate::payload::{CommandHeader, CommandKind, FrameHeader, setup_fingerprint};
 use crate::shm::{
     BridgeConfig, CommandPublisher, FrameSubscriber, Ipc, cleanup_dead_nodes,
-    command_service_counting, create_node, frame_service_counting, ipc_err, pause,
+    command_service_counting, create_node, frame_service_counting, ipc_err, loan_initialised,
+    pause,
 };
 use crate::transport::TransportError;
 use core::fmt;
-use core::mem::MaybeUninit;
 use core::time::Duration;
 use iceoryx2::prelude::*;
 use needle_core::inverse::{Controller, InverseParams};
@@ -213,14 +213,8 @@ impl<const M: usize> ControllerNode<M> {
             .create()
             .map_err(dbg)
             .map_err(ipc_err("create command publisher"))?;
-        let mut b = Box::<Controller<M>>::new_uninit();
-        Controller::init_in_place(&mut b, chain, params);
-        // SAFETY: `init_in_place` initialised every field.
-        let core = unsafe { b.assume_init() };
-        let mut c = Box::<Command<M>>::new_uninit();
-        Command::init_in_place(&mut c);
-        // SAFETY: as above.
-        let last_answer = unsafe { c.assume_init() };
+        let core = Controller::new_boxed(chain, params);
+        let last_answer = Command::new_boxed();
         Ok(Self {
             node,
             frames,
@@ -305,24 +299,13 @@ impl<const M: usize> ControllerNode<M> {
         session: u64,
         fill: impl FnOnce(&mut Command<M>),
     ) -> Result<(), TransportError> {
-        let mut sample = self
-            .commands
-            .loan_uninit()
-            .map_err(dbg)
-            .map_err(ipc_err("loan command"))?;
-        *sample.user_header_mut() = CommandHeader {
+        let header = CommandHeader {
             session,
             kind: kind as u32,
             reserved: 0,
         };
-        // SAFETY: `CommandPayload<M>` is `#[repr(transparent)]` over `Command<M>`.
-        let slot = unsafe {
-            &mut *(sample.payload_mut() as *mut MaybeUninit<crate::payload::CommandPayload<M>>)
-                .cast::<MaybeUninit<Command<M>>>()
-        };
-        fill(Command::init_in_place(slot));
-        // SAFETY: `init_in_place` initialised every byte.
-        let sample = unsafe { sample.assume_init() };
+        let mut sample = loan_initialised(&self.commands, header, "loan command")?;
+        fill(&mut sample.payload_mut().0);
         sample
             .send()
             .map_err(dbg)
@@ -385,27 +368,16 @@ impl<const M: usize> ControllerNode<M> {
             self.holding = false;
             self.log(format_args!("fresh frame {}: resuming", frame.sequence));
         }
-        let mut sample_out = self
-            .commands
-            .loan_uninit()
-            .map_err(dbg)
-            .map_err(ipc_err("loan command"))?;
-        *sample_out.user_header_mut() = CommandHeader {
+        let header = CommandHeader {
             session: h.session,
             kind: CommandKind::Answer as u32,
             reserved: 0,
         };
-        // SAFETY: `CommandPayload<M>` is `#[repr(transparent)]` over `Command<M>`.
-        let slot = unsafe {
-            &mut *(sample_out.payload_mut() as *mut MaybeUninit<crate::payload::CommandPayload<M>>)
-                .cast::<MaybeUninit<Command<M>>>()
-        };
-        let cmd = Command::init_in_place(slot);
+        let mut sample_out = loan_initialised(&self.commands, header, "loan command")?;
+        let cmd = &mut sample_out.payload_mut().0;
         match self.core.step(frame, cmd) {
             Ok(_) => {
                 *self.last_answer = *cmd;
-                // SAFETY: `init_in_place` initialised every byte.
-                let sample_out = unsafe { sample_out.assume_init() };
                 sample_out
                     .send()
                     .map_err(dbg)

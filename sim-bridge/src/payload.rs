@@ -15,9 +15,12 @@
 
 use core::fmt::Write as _;
 use iceoryx2::prelude::ZeroCopySend;
+use needle_core::Zeroable;
 use needle_core::inverse::InverseParams;
 use needle_core::kinematics::DhChain;
-use needle_core::payload::{COMMAND_TYPE_NAME, Command, ComplianceFrame, FRAME_TYPE_NAME, JOINTS};
+use needle_core::payload::{
+    COMMAND_TYPE_NAME, Command, ComplianceFrame, FRAME_TYPE_NAME, JOINTS, VERSION,
+};
 
 /// A compliance frame as an iceoryx2 payload (host → core), layout identical to
 /// [`ComplianceFrame<M>`].
@@ -44,6 +47,30 @@ pub struct CommandPayload<const M: usize>(pub Command<M>);
 unsafe impl<const M: usize> ZeroCopySend for CommandPayload<M> {
     unsafe fn type_name() -> &'static str {
         COMMAND_TYPE_NAME
+    }
+}
+
+// SAFETY: `#[repr(transparent)]` over `ComplianceFrame<M>`, which is `Zeroable`.
+unsafe impl<const M: usize> Zeroable for FramePayload<M> {}
+// SAFETY: `#[repr(transparent)]` over `Command<M>`, which is `Zeroable`.
+unsafe impl<const M: usize> Zeroable for CommandPayload<M> {}
+
+/// A payload of the bridge, initialised in a loaned sample as the core's `init_in_place` does:
+/// all zero, then stamped with the layout version ([`crate::shm::loan_initialised`]).
+pub trait Payload: ZeroCopySend + Zeroable + core::fmt::Debug {
+    /// Writes the layout version into a zeroed payload.
+    fn stamp(&mut self);
+}
+
+impl<const M: usize> Payload for FramePayload<M> {
+    fn stamp(&mut self) {
+        self.0.version = VERSION;
+    }
+}
+
+impl<const M: usize> Payload for CommandPayload<M> {
+    fn stamp(&mut self) {
+        self.0.version = VERSION;
     }
 }
 
@@ -128,7 +155,7 @@ pub fn new_session_id() -> u64 {
     fnv1a(&bytes).max(1)
 }
 
-/// Copies the used part of `src` into `dst` (a frame initialised with
+/// Copies the used part of `src` into `dst` (a frame in the state of
 /// [`ComplianceFrame::init_in_place`]): the header, the used groups, the `m × m` block of `W`,
 /// the `m` used columns of `C` and the used rows of `δ_free`. The unused entries of `dst` keep
 /// their zeros. `m` is clamped to the capacity, so a corrupt `src` cannot make it read out of
@@ -163,10 +190,7 @@ mod tests {
     use needle_core::synthetic::random_frame;
 
     fn boxed<const M: usize>() -> Box<ComplianceFrame<M>> {
-        let mut b = Box::<ComplianceFrame<M>>::new_uninit();
-        ComplianceFrame::init_in_place(&mut b);
-        // SAFETY: initialised just above.
-        unsafe { b.assume_init() }
+        ComplianceFrame::new_boxed()
     }
 
     #[test]

@@ -6,7 +6,7 @@
 //! ([`frame_service`], [`command_service`]).
 //!
 //! Zero copy: the host loans an uninitialised frame sample, initialises it in place
-//! ([`ComplianceFrame::init_in_place`]) and writes the frame into it ([`SharedMemoryHost::publish_with`]);
+//! ([`loan_initialised`]) and writes the frame into it ([`SharedMemoryHost::publish_with`]);
 //! the controller steps directly on the received sample and writes its command into a loaned
 //! command sample. Nothing of `W` crosses the stack. (`needle serve` builds its frame in the
 //! `World`, so it copies the used `m × m` block once into the sample with [`copy_used`]; see
@@ -19,18 +19,20 @@
 //! open removes it and creates it again (`open_recovering`).
 
 use crate::payload::{
-    CommandHeader, CommandKind, CommandPayload, FrameHeader, FramePayload, copy_used,
+    CommandHeader, CommandKind, CommandPayload, FrameHeader, FramePayload, Payload, copy_used,
 };
 use crate::transport::{ExchangeReport, Transport, TransportError};
 use core::time::Duration;
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
+use iceoryx2::sample_mut::SampleMut;
 use iceoryx2::service::builder::publish_subscribe::{
     PublishSubscribeCreateError, PublishSubscribeOpenError, PublishSubscribeOpenOrCreateError,
 };
 use iceoryx2::service::port_factory::publish_subscribe::PortFactory;
 use needle_core::payload::{COMMAND_TYPE_NAME, Command, ComplianceFrame, FRAME_TYPE_NAME};
+use needle_core::zeroed_in_place;
 use std::time::Instant;
 
 /// Default deadline on both sides: a controller without a fresh frame, or a host without a
@@ -101,6 +103,27 @@ pub type FrameSubscriber<const M: usize> = Subscriber<Ipc, FramePayload<M>, Fram
 pub type CommandPublisher<const M: usize> = Publisher<Ipc, CommandPayload<M>, CommandHeader>;
 /// Command subscriber port.
 pub type CommandSubscriber<const M: usize> = Subscriber<Ipc, CommandPayload<M>, CommandHeader>;
+
+/// Loans a sample from `publisher`, writes `header` and initialises the payload in place (all
+/// zero, current version: [`Payload`]), so that it never transits the stack. The one place
+/// where the bridge marks a loaned sample as initialised.
+///
+/// # Errors
+/// [`TransportError::Ipc`] (with `what`) when the loan fails.
+pub fn loan_initialised<P: Payload, H: ZeroCopySend + core::fmt::Debug + Default>(
+    publisher: &Publisher<Ipc, P, H>,
+    header: H,
+    what: &'static str,
+) -> Result<SampleMut<Ipc, P, H>, TransportError> {
+    let mut sample = publisher
+        .loan_uninit()
+        .map_err(dbg)
+        .map_err(ipc_err(what))?;
+    *sample.user_header_mut() = header;
+    zeroed_in_place(sample.payload_mut()).stamp();
+    // SAFETY: `zeroed_in_place` initialised every byte of the payload (`P: Zeroable`).
+    Ok(unsafe { sample.assume_init() })
+}
 
 pub(crate) fn ipc_err(what: &'static str) -> impl FnOnce(String) -> TransportError {
     move |detail| TransportError::Ipc { what, detail }
@@ -411,7 +434,7 @@ impl<const M: usize> SharedMemoryHost<M> {
     }
 
     /// Publishes one frame written in place: loans a sample, initialises it
-    /// ([`ComplianceFrame::init_in_place`], all zero, current version) and lets `fill` write the
+    /// ([`loan_initialised`]: all zero, current version) and lets `fill` write the
     /// frame straight into shared memory. Returns the frame's sequence.
     ///
     /// # Errors
@@ -420,24 +443,10 @@ impl<const M: usize> SharedMemoryHost<M> {
         &mut self,
         fill: impl FnOnce(&mut ComplianceFrame<M>),
     ) -> Result<u64, TransportError> {
-        let mut sample = self
-            .frames
-            .loan_uninit()
-            .map_err(dbg)
-            .map_err(ipc_err("loan frame"))?;
-        *sample.user_header_mut() = self.header;
-        let slot = sample.payload_mut();
-        // SAFETY: `FramePayload<M>` is `#[repr(transparent)]` over `ComplianceFrame<M>`, so the
-        // two `MaybeUninit`s have the same layout.
-        let slot = unsafe {
-            &mut *(slot as *mut core::mem::MaybeUninit<FramePayload<M>>)
-                .cast::<core::mem::MaybeUninit<ComplianceFrame<M>>>()
-        };
-        let frame = ComplianceFrame::init_in_place(slot);
+        let mut sample = loan_initialised(&self.frames, self.header, "loan frame")?;
+        let frame = &mut sample.payload_mut().0;
         fill(frame);
         let sequence = frame.sequence;
-        // SAFETY: `init_in_place` initialised every byte of the payload.
-        let sample = unsafe { sample.assume_init() };
         sample.send().map_err(dbg).map_err(ipc_err("send frame"))?;
         self.stats.frames_published += 1;
         Ok(sequence)

@@ -92,11 +92,9 @@ impl From<StepError> for TransportError {
 /// use needle_core::payload::{Command, ComplianceFrame};
 ///
 /// let mut t = InProcess::<24>::new(DhChain::rv1a(), InverseParams::default());
-/// let mut f = Box::<ComplianceFrame<24>>::new_uninit();
-/// let frame = ComplianceFrame::init_in_place(&mut f); // all zero: fails validation
-/// let mut c = Box::<Command<24>>::new_uninit();
-/// let cmd = Command::init_in_place(&mut c);
-/// assert!(t.exchange(frame, cmd).is_err());
+/// let frame = ComplianceFrame::<24>::new_boxed(); // all zero: fails validation
+/// let mut cmd = Command::<24>::new_boxed();
+/// assert!(t.exchange(&frame, &mut cmd).is_err());
 /// ```
 pub trait Transport<const M: usize> {
     /// Hands `frame` to the core and writes the command answering it (same `sequence`, checked
@@ -120,11 +118,9 @@ impl<const M: usize> InProcess<M> {
     /// A core for `chain` with tuning `params` (the controller, ≈ 300 KiB at `M = 192`, is built
     /// in place on the heap).
     pub fn new(chain: DhChain<JOINTS>, params: InverseParams) -> Self {
-        let mut b = Box::<Controller<M>>::new_uninit();
-        Controller::init_in_place(&mut b, chain, params);
-        // SAFETY: `init_in_place` initialised every field.
-        let controller = unsafe { b.assume_init() };
-        Self { controller }
+        Self {
+            controller: Controller::new_boxed(chain, params),
+        }
     }
 
     /// The core's controller (tuning, warm-start state).
@@ -159,26 +155,23 @@ mod tests {
         const M: usize = 48;
         let chain = DhChain::rv1a();
         let q = [0.1, 0.3, 2.0, 0.0, 0.5, 0.0];
-        let mut f = Box::<ComplianceFrame<M>>::new_uninit();
-        let f = ComplianceFrame::init_in_place(&mut f);
-        let mut c1 = Box::<Command<M>>::new_uninit();
-        let c1 = Command::init_in_place(&mut c1);
-        let mut c2 = Box::<Command<M>>::new_uninit();
-        let c2 = Command::init_in_place(&mut c2);
+        let mut f = ComplianceFrame::<M>::new_boxed();
+        let mut c1 = Command::<M>::new_boxed();
+        let mut c2 = Command::<M>::new_boxed();
         let mut t = InProcess::<M>::new(chain, InverseParams::default());
-        let mut core = Box::new(Controller::<M>::new(chain, InverseParams::default()));
+        let mut core = Controller::<M>::new_boxed(chain, InverseParams::default());
         for seed in 0..3 {
-            random_frame(f, &chain, &q, 30, seed, seed == 1);
+            random_frame(&mut f, &chain, &q, 30, seed, seed == 1);
             f.sequence = seed;
-            t.exchange(f, c1).expect("in process");
-            core.step(f, c2).expect("core");
+            t.exchange(&f, &mut c1).expect("in process");
+            core.step(&f, &mut c2).expect("core");
             assert_eq!(c1.frame_sequence, seed);
             assert_eq!(c1.q.map(f64::to_bits), c2.q.map(f64::to_bits));
             assert_eq!(c1.lambda.map(f64::to_bits), c2.lambda.map(f64::to_bits));
         }
         f.version = 0;
         assert!(matches!(
-            t.exchange(f, c1),
+            t.exchange(&f, &mut c1),
             Err(TransportError::Core(StepError::InvalidFrame(_)))
         ));
     }

@@ -40,10 +40,7 @@ fn valid(f: &mut ComplianceFrame<M>, sequence: u64) {
 }
 
 fn boxed_command() -> Box<Command<M>> {
-    let mut b = Box::<Command<M>>::new_uninit();
-    Command::init_in_place(&mut b);
-    // SAFETY: initialised just above.
-    unsafe { b.assume_init() }
+    Command::new_boxed()
 }
 
 /// Publishes through `publish` then waits until the controller has received `received` frames.
@@ -249,13 +246,12 @@ fn new_pair_answers(instance: &str) -> (ControllerStats, needle_bridge::HostStat
         setup_fingerprint(&DhChain::rv1a(), &InverseParams::default()),
     )
     .expect("host after the crash");
-    let mut f = Box::<ComplianceFrame<M>>::new_uninit();
-    let frame = ComplianceFrame::init_in_place(&mut f);
-    valid(frame, 0);
+    let mut frame = ComplianceFrame::<M>::new_boxed();
+    valid(&mut frame, 0);
     let mut cmd = boxed_command();
     let mut answered = false;
     for _ in 0..200 {
-        host.publish(frame).expect("publish");
+        host.publish(&frame).expect("publish");
         for _ in 0..5 {
             ctl.tick().expect("tick");
         }
@@ -265,7 +261,7 @@ fn new_pair_answers(instance: &str) -> (ControllerStats, needle_bridge::HostStat
         }
     }
     assert!(answered, "no answer after the crash: {:?}", ctl.stats());
-    let _ = host.exchange(frame, &mut cmd);
+    let _ = host.exchange(&frame, &mut cmd);
     (ctl.stats(), host.stats())
 }
 

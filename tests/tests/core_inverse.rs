@@ -6,22 +6,15 @@
 use needle_core::payload::StatusFlags;
 use needle_core::synthetic::{random_frame, rigid_needle_frame};
 use needle_core::{Command, ComplianceFrame, Controller, DhChain, InverseParams};
-use std::mem::MaybeUninit;
 
 const M: usize = 24;
 
 fn boxed_frame() -> Box<ComplianceFrame<M>> {
-    let mut b = Box::new(MaybeUninit::<ComplianceFrame<M>>::uninit());
-    ComplianceFrame::init_in_place(&mut b);
-    // SAFETY: initialised by `init_in_place`.
-    unsafe { b.assume_init() }
+    ComplianceFrame::new_boxed()
 }
 
 fn boxed_command() -> Box<Command<M>> {
-    let mut b = Box::new(MaybeUninit::<Command<M>>::uninit());
-    Command::init_in_place(&mut b);
-    // SAFETY: initialised by `init_in_place`.
-    unsafe { b.assume_init() }
+    Command::new_boxed()
 }
 
 const Q_TARGET: [f64; 6] = [0.2, 0.35, 2.0, 0.1, 0.6, -0.2];

@@ -2,11 +2,11 @@
 //! references): every frictionless problem (rows as single unilateral groups, as the reference
 //! does) and every friction problem (3-row Coulomb contacts `[n, t1, t2]`).
 
+use needle_core::boxed_zeroed;
 use needle_core::constraint::{BlockGs, GsParams};
 use needle_core::payload::RowGroup;
 use needle_tests::load_ref;
 use serde_json::Value;
-use std::mem::MaybeUninit;
 
 const M: usize = 150;
 
@@ -28,12 +28,7 @@ fn load_problem(p: &Value) -> Problem {
     let n = p["n"].as_u64().expect("n") as usize;
     assert!(n <= M);
     // Box the 180 KB matrix without a stack temporary.
-    let mut w: Box<MaybeUninit<[[f64; M]; M]>> = Box::new_uninit();
-    // SAFETY: an all-zero bit pattern is a valid array of f64.
-    let mut w = unsafe {
-        std::ptr::write_bytes(w.as_mut_ptr(), 0, 1);
-        w.assume_init()
-    };
+    let mut w = boxed_zeroed::<[[f64; M]; M]>();
     for (i, row) in p["W"].as_array().expect("W").iter().enumerate() {
         for (j, x) in arr(row).into_iter().enumerate() {
             w[i][j] = x;

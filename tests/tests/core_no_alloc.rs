@@ -5,7 +5,6 @@ use needle_core::synthetic::random_frame;
 use needle_core::{Command, ComplianceFrame, Controller, DhChain, InverseParams};
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
-use std::mem::MaybeUninit;
 
 struct Counting;
 
@@ -42,22 +41,19 @@ const M: usize = 120;
 
 #[test]
 fn inverse_step_allocates_nothing() {
-    let mut fm = Box::new(MaybeUninit::<ComplianceFrame<M>>::uninit());
-    let frame = ComplianceFrame::init_in_place(&mut fm);
-    let mut cm = Box::new(MaybeUninit::<Command<M>>::uninit());
-    let cmd = Command::init_in_place(&mut cm);
+    let mut frame = ComplianceFrame::<M>::new_boxed();
+    let mut cmd = Command::<M>::new_boxed();
     let chain = DhChain::rv1a();
     let q = [0.1, 0.3, 2.0, 0.0, 0.5, 0.0];
-    let mut cm2 = Box::new(MaybeUninit::<Controller<M>>::uninit());
-    let ctrl = Controller::init_in_place(&mut cm2, chain, InverseParams::default());
-    random_frame(frame, &chain, &q, M, 42, false);
+    let mut ctrl = Controller::<M>::new_boxed(chain, InverseParams::default());
+    random_frame(&mut frame, &chain, &q, M, 42, false);
     // Warm up (lazy statics, first-touch of anything).
-    ctrl.step(frame, cmd).expect("valid frame");
+    ctrl.step(&frame, &mut cmd).expect("valid frame");
     let mut total = 0;
     for seed in 0..5 {
-        random_frame(frame, &chain, &q, M, seed, seed % 2 == 0);
+        random_frame(&mut frame, &chain, &q, M, seed, seed % 2 == 0);
         let before = allocations();
-        let rep = ctrl.step(frame, cmd).expect("valid frame");
+        let rep = ctrl.step(&frame, &mut cmd).expect("valid frame");
         total += allocations() - before;
         assert_eq!(rep.solves, 8);
     }

@@ -6,22 +6,15 @@ use needle_core::payload::{GroupKind, RowGroup, ValidationError};
 use needle_core::synthetic::random_frame;
 use needle_core::{Command, ComplianceFrame, Controller, DhChain, InverseParams};
 use proptest::prelude::*;
-use std::mem::MaybeUninit;
 
 const M: usize = 30;
 
 fn boxed_frame() -> Box<ComplianceFrame<M>> {
-    let mut b = Box::new(MaybeUninit::<ComplianceFrame<M>>::uninit());
-    ComplianceFrame::init_in_place(&mut b);
-    // SAFETY: initialised by `init_in_place`.
-    unsafe { b.assume_init() }
+    ComplianceFrame::new_boxed()
 }
 
 fn boxed_command() -> Box<Command<M>> {
-    let mut b = Box::new(MaybeUninit::<Command<M>>::uninit());
-    Command::init_in_place(&mut b);
-    // SAFETY: initialised by `init_in_place`.
-    unsafe { b.assume_init() }
+    Command::new_boxed()
 }
 
 const Q: [f64; 6] = [0.1, 0.3, 2.0, 0.0, 0.5, 0.0];
