@@ -1,0 +1,47 @@
+//! Why an inverse step fails.
+
+use crate::payload::ValidationError;
+use core::fmt;
+
+/// Why an inverse step failed; the command is then left untouched.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[non_exhaustive]
+pub enum StepError {
+    /// The frame failed validation.
+    InvalidFrame(ValidationError),
+    /// A parameter is invalid (non-finite or non-positive where positivity is required).
+    InvalidParameter {
+        /// Parameter name.
+        name: &'static str,
+    },
+    /// A computed quantity was not finite (should not happen on validated data).
+    NonFinite {
+        /// Where.
+        stage: &'static str,
+    },
+}
+
+impl fmt::Display for StepError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::InvalidFrame(e) => write!(f, "invalid frame: {e}"),
+            Self::InvalidParameter { name } => write!(f, "invalid parameter {name}"),
+            Self::NonFinite { stage } => write!(f, "non-finite result in {stage}"),
+        }
+    }
+}
+
+impl core::error::Error for StepError {
+    fn source(&self) -> Option<&(dyn core::error::Error + 'static)> {
+        match self {
+            Self::InvalidFrame(e) => Some(e),
+            _ => None,
+        }
+    }
+}
+
+impl From<ValidationError> for StepError {
+    fn from(e: ValidationError) -> Self {
+        Self::InvalidFrame(e)
+    }
+}

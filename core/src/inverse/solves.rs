@@ -1,0 +1,279 @@
+//! The constraint solves of a step. Every solve goes one path, [`Controller::solve`], told which
+//! λ it writes ([`Target`]) and where it starts ([`Start`]); the path solves the full problem
+//! or, with `eliminate_base`, the problem with the 6 base rows eliminated ([`crate::reduce`]),
+//! and polishes a slow reduced solve on its active set.
+//!
+//! Only the base rows' violation `δ_base(q)` changes with `q` within a step; the frozen
+//! active set of the base solve ([`ActiveSet`]) predicts how the solution follows it,
+//! `λ ≈ λ_q + Z (δ_b(q') − δ_b(q))`, which starts the perturbed solves next to their answer and
+//! is the whole "solve" of a linearised Jacobian column.
+
+use super::{Controller, StepError};
+use crate::constraint::{ActiveSet, BlockGs, GsParams, SolveReport};
+use crate::kinematics::Pose;
+use crate::math::rotation_log;
+use crate::payload::{ComplianceFrame, JOINTS};
+use nalgebra::{Matrix3, Vector3};
+
+/// Sweeps after which a reduced solve that has not converged is polished on its active set.
+const POLISH_AFTER: u32 = 60;
+
+/// Which λ a solve writes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum Target {
+    /// `λ_q`, the solution at the frame's joints (`lambda.base`). Solving it records
+    /// `δ_base(q)` and drops the active-set factor of the previous one.
+    Base,
+    /// A solution at other joints (`lambda.work`): Jacobian columns, the final solve.
+    Work,
+}
+
+/// Where a solve's iterate starts.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum Start {
+    /// From the target's current content (the previous step's λ, or zeros).
+    Current,
+    /// From the prediction of `λ` at the new joints ([`Controller::predict`]): `λ_q` moved along
+    /// the frozen active set when a valid factor exists, else `λ_q` itself.
+    Predicted,
+}
+
+/// Rotation matrix from the frame's row-major array.
+fn r_free(frame_r: &[[f64; 3]; 3]) -> Matrix3<f64> {
+    let r = frame_r;
+    Matrix3::new(
+        r[0][0], r[0][1], r[0][2], r[1][0], r[1][1], r[1][2], r[2][0], r[2][1], r[2][2],
+    )
+}
+
+/// The base-row violation `δ_base(q)` for the needle-base pose `b`: translation `p_B − p_free`
+/// [mm], rotation `log(R_B R_freeᵀ)` [rad], world frame.
+pub fn base_violation(b: &Pose, p_free: &[f64; 3], r_free_rows: &[[f64; 3]; 3]) -> [f64; 6] {
+    let dp = b.translation - Vector3::from(*p_free);
+    let dr = rotation_log(&(b.rotation * r_free(r_free_rows).transpose()));
+    [dp[0], dp[1], dp[2], dr[0], dr[1], dr[2]]
+}
+impl<const M: usize> Controller<M> {
+    /// One constraint solve at joints `q` into `target`, started from `start`, to `tolerance`
+    /// (relative, as [`GsParams::tolerance`]); the other Gauss-Seidel settings are `params.gs`.
+    /// Returns the tool pose at `q` and the report.
+    pub(super) fn solve(
+        &mut self,
+        frame: &ComplianceFrame<M>,
+        q: &[f64; JOINTS],
+        target: Target,
+        start: Start,
+        tolerance: f64,
+    ) -> (Pose, SolveReport) {
+        debug_assert!(!(target == Target::Base && start == Start::Predicted));
+        let b = self.chain.tool_pose(q);
+        let d = base_violation(&b, &frame.p_free, &frame.r_free);
+        if target == Target::Base {
+            self.delta_base = d;
+            self.set_valid = false;
+        }
+        if start == Start::Predicted {
+            self.predict(frame, &d);
+        }
+        let gs = GsParams {
+            tolerance,
+            ..self.params.gs
+        };
+        let rep = if self.params.eliminate_base {
+            self.solve_reduced(frame, &d, target, &gs)
+        } else {
+            self.delta[..6].copy_from_slice(&d);
+            match target {
+                Target::Base if self.params.active_set => self.solve_base_on_active_set(frame, &gs),
+                _ => self
+                    .gs
+                    .solve(&frame.w, &self.delta, self.lambda.of(target), &gs),
+            }
+        };
+        (b, rep)
+    }
+
+    /// `λ_q` on the full problem through its active set: a loose Gauss-Seidel pass finds which
+    /// rows are free, the free rows are solved exactly by a dense factorisation (also giving their
+    /// response `Z` to the base rows), and Gauss-Seidel confirms the result to the full tolerance
+    /// (repairing any status change).
+    fn solve_base_on_active_set(
+        &mut self,
+        frame: &ComplianceFrame<M>,
+        gs: &GsParams,
+    ) -> SolveReport {
+        let loose = GsParams {
+            tolerance: gs.tolerance.max(self.params.presolve_tolerance),
+            ..*gs
+        };
+        let r1 = self
+            .gs
+            .solve(&frame.w, &self.delta, &mut self.lambda.base, &loose);
+        newton_on_active_set(
+            &self.gs,
+            &mut self.set,
+            &frame.w,
+            &self.delta,
+            &mut self.lambda.base,
+        );
+        let left = GsParams {
+            max_iterations: gs.max_iterations.saturating_sub(r1.iterations),
+            ..*gs
+        };
+        let r2 = self
+            .gs
+            .solve(&frame.w, &self.delta, &mut self.lambda.base, &left);
+        // A status changed during the confirmation: factor again at the final answer.
+        if r2.iterations > 2 {
+            self.gs
+                .factor_active_set(&frame.w, &self.lambda.base, &mut self.set);
+        }
+        self.set_valid = self.set.is_valid();
+        SolveReport {
+            iterations: r1.iterations + r2.iterations,
+            ..r2
+        }
+    }
+
+    /// A solve of the reduced problem for the base violation `d`, started from the target's
+    /// rows `6..m`; the full λ (base rows recovered) is written back into the target.
+    fn solve_reduced(
+        &mut self,
+        frame: &ComplianceFrame<M>,
+        d: &[f64; 6],
+        target: Target,
+        gs: &GsParams,
+    ) -> SolveReport {
+        self.red.reduce_delta(frame, d);
+        let n = self.red.rows();
+        self.lr[..n].copy_from_slice(&self.lambda.of(target)[6..6 + n]);
+        let first = GsParams {
+            max_iterations: gs.max_iterations.min(POLISH_AFTER),
+            ..*gs
+        };
+        let mut rep = if n > 0 {
+            self.gs
+                .solve(&self.red.w, &self.red.delta, &mut self.lr, &first)
+        } else {
+            SolveReport {
+                converged: true,
+                ..SolveReport::default()
+            }
+        };
+        if !rep.converged {
+            self.polish_reduced(frame, d, target);
+            let left = GsParams {
+                max_iterations: gs.max_iterations.saturating_sub(rep.iterations),
+                ..*gs
+            };
+            let r2 = self
+                .gs
+                .solve(&self.red.w, &self.red.delta, &mut self.lr, &left);
+            rep = SolveReport {
+                iterations: rep.iterations + r2.iterations,
+                ..r2
+            };
+        }
+        self.red.expand(frame, d, &self.lr, self.lambda.of(target));
+        rep
+    }
+
+    /// Slow convergence of a reduced solve (sliding points coupled through the stiff needle:
+    /// rows close to parallel): one Newton step on the active set of the current iterate — stick
+    /// rows bilateral, slipping axial rows tied to their bound — on the full problem, written
+    /// back into the reduced iterate; Gauss-Seidel then confirms it (and repairs any status the
+    /// step got wrong).
+    fn polish_reduced(&mut self, frame: &ComplianceFrame<M>, d: &[f64; 6], target: Target) {
+        let n = self.red.rows();
+        let full = self.lambda.of(target);
+        self.red.expand(frame, d, &self.lr, full);
+        if self.params.active_set && self.gs_full.prepare_frame(frame).is_ok() {
+            self.delta[..6].copy_from_slice(d);
+            if newton_on_active_set(&self.gs_full, &mut self.set, &frame.w, &self.delta, full) {
+                self.lr[..n].copy_from_slice(&full[6..6 + n]);
+            }
+            self.set_valid = false;
+        }
+    }
+
+    /// The prediction of λ for the base violation `d` into `lambda.work`: `λ_q + Z (d − δ_b(q))`
+    /// on the frozen active set when its factor is valid, else `λ_q`.
+    pub(super) fn predict(&mut self, frame: &ComplianceFrame<M>, d: &[f64; 6]) {
+        if !self.set_valid {
+            let m = frame.rows();
+            self.lambda.work[..m].copy_from_slice(&self.lambda.base[..m]);
+            return;
+        }
+        let mut dd = [0.0; 6];
+        for i in 0..6 {
+            dd[i] = d[i] - self.delta_base[i];
+        }
+        // The solver prepared on the full frame (the reduced one has other rows).
+        let full = if self.params.eliminate_base {
+            &self.gs_full
+        } else {
+            &self.gs
+        };
+        full.predict_base_change(&self.set, &self.lambda.base, &dd, &mut self.lambda.work);
+    }
+
+    /// The prediction at joints `q` into `lambda.work` (a linearised Jacobian column); returns
+    /// the tool pose.
+    pub(super) fn predict_at(&mut self, frame: &ComplianceFrame<M>, q: &[f64; JOINTS]) -> Pose {
+        let b = self.chain.tool_pose(q);
+        let d = base_violation(&b, &frame.p_free, &frame.r_free);
+        self.predict(frame, &d);
+        b
+    }
+
+    /// Factors the active set of the base solve (`lambda.base`) on the full frame for the
+    /// linearised Jacobian; `false` if it is singular or the frame cannot be prepared.
+    pub(super) fn factor_linearized(&mut self, frame: &ComplianceFrame<M>) -> bool {
+        if self.gs_full.prepare_frame(frame).is_err() {
+            return false;
+        }
+        let ok = self
+            .gs_full
+            .factor_active_set(&frame.w, &self.lambda.base, &mut self.set);
+        self.set_valid = ok && self.set.is_valid();
+        self.set_valid
+    }
+
+    /// Validates the frame and factors the diagonal blocks, of the reduced problem too when the
+    /// base rows are eliminated.
+    pub(super) fn prepare_blocks(&mut self, frame: &ComplianceFrame<M>) -> Result<(), StepError> {
+        self.gs.prepare_frame(frame)?;
+        if !self.params.eliminate_base {
+            return Ok(());
+        }
+        if !self.red.prepare(frame) {
+            return Err(StepError::NonFinite {
+                stage: "base block of W (not positive definite)",
+            });
+        }
+        let n = self.red.rows();
+        if n > 0 {
+            // The frame's own W passed validation, so a failure here is the Schur complement
+            // of the base block: W is not positive definite (e.g. a corrupted diagonal).
+            self.gs
+                .prepare(&self.red.w, n, self.red.groups())
+                .map_err(|_| StepError::NonFinite {
+                    stage: "W without the base rows (not positive definite)",
+                })?;
+        }
+        Ok(())
+    }
+}
+
+/// One Newton step on the active set of `lambda` (the full problem of `solver`): factor the set,
+/// then refine `lambda` on it. `false` (and `lambda` unchanged) when the set is singular or the
+/// step is not finite.
+fn newton_on_active_set<const M: usize>(
+    solver: &BlockGs<M>,
+    set: &mut ActiveSet<M>,
+    w: &[[f64; M]; M],
+    delta: &[f64; M],
+    lambda: &mut [f64; M],
+) -> bool {
+    solver.factor_active_set(w, lambda, set) && solver.refine_on_active_set(w, delta, lambda, set)
+}

@@ -1,0 +1,392 @@
+//! One inverse step, stage by stage ([`Controller::step`]), and the open-loop solve.
+
+use super::solves::{Start, Target};
+use super::{Controller, Objective, StepError, evaluate_objective};
+use crate::constraint::SolveReport;
+use crate::payload::{Command, ComplianceFrame, JOINTS, SolverReport, StatusFlags, VERSION};
+use nalgebra::{Matrix4, SMatrix, SVector, Vector4};
+
+/// The Jacobian `∂T/∂q`, 4 × joints [mm/rad].
+type Jacobian = SMatrix<f64, 4, JOINTS>;
+
+impl<const M: usize> Controller<M> {
+    /// One inverse step for `frame`, written into the caller-owned `cmd`. Allocates nothing.
+    ///
+    /// The stages (module docs for the equations):
+    /// 1. validate the parameters and the frame, factor the diagonal blocks, warm start
+    ///    ([`Self::prepare`]);
+    /// 2. base solve at the frame's joints and its objective `T(q)` ([`Self::base_solve`]);
+    ///    within tolerance: hold ([`Self::hold`]) and skip to 6;
+    /// 3. Jacobian by forward differences ([`Self::jacobian`]);
+    /// 4. damped Newton step within the trust region, speed and joint limits
+    ///    ([`Self::newton_step`]);
+    /// 5. final solve at the commanded joints ([`Self::final_solve`]);
+    /// 6. answer: check and write the command ([`Self::answer`]).
+    ///
+    /// # Errors
+    /// [`StepError`] when the frame or the parameters are invalid; `cmd` is then untouched.
+    pub fn step(
+        &mut self,
+        frame: &ComplianceFrame<M>,
+        cmd: &mut Command<M>,
+    ) -> Result<SolverReport, StepError> {
+        let m = self.prepare(frame)?;
+        let mut report = SolverReport::default();
+        let (obj0, base_rep) = self.base_solve(frame, &mut report);
+        let (q_new, final_rep) = if Vector4::from(obj0.t).norm_squared() <= self.params.tolerance {
+            self.hold(m, &obj0, &mut report);
+            (frame.q, base_rep)
+        } else {
+            let jac = self.jacobian(frame, &obj0, &mut report);
+            let q_new = self.newton_step(frame, &jac, &obj0, &mut report);
+            let final_rep = self.final_solve(frame, &q_new, &mut report);
+            (q_new, final_rep)
+        };
+        self.answer(frame, &q_new, &final_rep, report, cmd)
+    }
+
+    /// Stage 1: validates the parameters and the frame, factors the diagonal blocks (of the
+    /// reduced problem when the base rows are eliminated) and warm-starts `λ_q` from the previous
+    /// step's answer. Returns `m`.
+    fn prepare(&mut self, frame: &ComplianceFrame<M>) -> Result<usize, StepError> {
+        self.params.validate()?;
+        self.prepare_blocks(frame)?;
+        let m = frame.rows();
+        self.delta[..m].copy_from_slice(&frame.delta_free[..m]);
+        let l = &mut self.lambda;
+        if self.params.warm_start && l.prev_rows > 0 {
+            let n = l.prev_rows.min(m);
+            l.base[..n].copy_from_slice(&l.prev[..n]);
+            l.base[n..m].fill(0.0);
+        } else {
+            l.base[..m].fill(0.0);
+        }
+        Ok(m)
+    }
+
+    /// Stage 2: `λ_q` at the frame's joints and the objective `T(q)` there.
+    fn base_solve(
+        &mut self,
+        frame: &ComplianceFrame<M>,
+        report: &mut SolverReport,
+    ) -> (Objective, SolveReport) {
+        let tolerance = self.params.gs.tolerance;
+        let (b0, rep) = self.solve(frame, &frame.q, Target::Base, Start::Current, tolerance);
+        count_solve(report, &rep);
+        let obj0 = evaluate_objective(frame, &self.lambda.base, &b0, &self.params);
+        report.objective = obj0.t;
+        (obj0, rep)
+    }
+
+    /// Within tolerance: no motion, `λ_q` is the answer.
+    fn hold(&mut self, m: usize, obj0: &Objective, report: &mut SolverReport) {
+        report.flags |= StatusFlags::WITHIN_TOLERANCE;
+        self.lambda.work[..m].copy_from_slice(&self.lambda.base[..m]);
+        report.objective_after = obj0.t;
+    }
+
+    /// Stage 3: `J_i = (T(q + δq e_i) − T(q)) / δq` with `W` fixed, each column from a solve
+    /// started at the prediction, or from the prediction alone when linearised
+    /// ([`super::JacobianMode`]); the angular row through the rotation vectors
+    /// ([`Objective::angle_derivative`]).
+    fn jacobian(
+        &mut self,
+        frame: &ComplianceFrame<M>,
+        obj0: &Objective,
+        report: &mut SolverReport,
+    ) -> Jacobian {
+        let p = self.params;
+        let linearize = match p.jacobian {
+            super::JacobianMode::Solve => false,
+            super::JacobianMode::Linearized => true,
+            super::JacobianMode::Hybrid => frame.inserted == 0,
+        };
+        let linear = linearize && self.factor_linearized(frame);
+        let tolerance = p.jacobian_tolerance.max(p.gs.tolerance);
+        let mut jac = Jacobian::zeros();
+        for i in 0..JOINTS {
+            let mut qi = frame.q;
+            qi[i] += p.joint_step;
+            let bi = if linear {
+                report.solves += 1;
+                self.predict_at(frame, &qi)
+            } else {
+                let (bi, r) = self.solve(frame, &qi, Target::Work, Start::Predicted, tolerance);
+                count_solve(report, &r);
+                bi
+            };
+            let ti = evaluate_objective(frame, &self.lambda.work, &bi, &p);
+            for r in 0..3 {
+                jac[(r, i)] = (ti.t[r] - obj0.t[r]) / p.joint_step;
+            }
+            jac[(3, i)] = obj0.angle_derivative(&ti, p.joint_step, p.angle_weight);
+        }
+        jac
+    }
+
+    /// Stage 4: the damped least-squares step ([`Self::damped_step`]) brought within the trust
+    /// region, the speed and the joint limits ([`Self::limit_step`]). Returns the commanded
+    /// joints.
+    fn newton_step(
+        &self,
+        frame: &ComplianceFrame<M>,
+        jac: &Jacobian,
+        obj0: &Objective,
+        report: &mut SolverReport,
+    ) -> [f64; JOINTS] {
+        let t0 = Vector4::from(obj0.t);
+        let dq = self.damped_step(&frame.q, jac, &t0, report);
+        self.limit_step(frame, jac, &t0, dq, report)
+    }
+
+    /// `Δq = −Jᵀ (J Jᵀ + ε² I)⁻¹ T` with `ε` raised near a singularity. Joints at a limit that
+    /// the step pushes further out are locked (their column removed) and the step recomputed, so
+    /// that the clamp of [`Self::limit_step`] never turns the Newton step into one that does not
+    /// descend (e.g. J2 and J3 at their limits: the wrist alone tilting the needle away from an
+    /// unreachable target).
+    fn damped_step(
+        &self,
+        q: &[f64; JOINTS],
+        jac: &Jacobian,
+        t0: &Vector4<f64>,
+        report: &mut SolverReport,
+    ) -> SVector<f64, JOINTS> {
+        let p = &self.params;
+        let jjt: Matrix4<f64> = jac * jac.transpose();
+        let sigma_min = libm::sqrt(smallest_eigenvalue(&jjt).max(0.0));
+        let mut eps2 = p.damping * p.damping;
+        if sigma_min < p.singular_threshold {
+            let r = sigma_min / p.singular_threshold;
+            eps2 += (1.0 - r * r) * p.damping_max * p.damping_max;
+            report.flags |= StatusFlags::NEAR_SINGULAR;
+        }
+        let mut jac_free = *jac;
+        let mut dq = SVector::<f64, JOINTS>::zeros();
+        for _ in 0..=JOINTS {
+            let jjt: Matrix4<f64> = jac_free * jac_free.transpose();
+            dq = match (jjt + Matrix4::identity() * eps2).cholesky() {
+                Some(ch) => -(jac_free.transpose() * ch.solve(t0)),
+                None => SVector::zeros(),
+            };
+            let mut locked = false;
+            for i in 0..JOINTS {
+                let l = &self.chain.limits[i];
+                let out = (q[i] >= l.upper && dq[i] > 0.0) || (q[i] <= l.lower && dq[i] < 0.0);
+                if out {
+                    jac_free.set_column(i, &Vector4::zeros());
+                    dq[i] = 0.0;
+                    locked = true;
+                }
+            }
+            if !locked {
+                break;
+            }
+            report.flags |= StatusFlags::SATURATED_LIMIT;
+        }
+        if !dq.iter().all(|x| x.is_finite()) || dq.iter().all(|x| *x == 0.0) {
+            dq.fill(0.0);
+            report.flags |= StatusFlags::TARGET_UNREACHABLE;
+        }
+        dq
+    }
+
+    /// Brings `q + Δq` within the trust region on the base motion (`max_base_step`), the speed
+    /// limits (uniform scaling, keeps the direction) and the joint limits (clamp), then keeps the
+    /// best multiple of what is left for the linear model. Returns the commanded joints.
+    fn limit_step(
+        &self,
+        frame: &ComplianceFrame<M>,
+        jac: &Jacobian,
+        t0: &Vector4<f64>,
+        mut dq: SVector<f64, JOINTS>,
+        report: &mut SolverReport,
+    ) -> [f64; JOINTS] {
+        let (p, q) = (&self.params, &frame.q);
+        let (jt, _) = self.chain.jacobian_tool(q);
+        let base_motion = (jt.fixed_rows::<3>(0) * dq).norm();
+        if base_motion > p.max_base_step {
+            dq *= p.max_base_step / base_motion;
+            report.flags |= StatusFlags::STEP_LIMITED;
+        }
+        let mut scale = 1.0f64;
+        for i in 0..JOINTS {
+            let lim = self.chain.limits[i].max_speed * frame.dt;
+            let a = libm::fabs(dq[i]);
+            if a > lim {
+                scale = scale.min(if lim > 0.0 { lim / a } else { 0.0 });
+            }
+        }
+        if scale < 1.0 {
+            dq *= scale;
+            report.flags |= StatusFlags::SATURATED_SPEED;
+        }
+        let mut q_new = *q;
+        for i in 0..JOINTS {
+            q_new[i] = q[i] + dq[i];
+        }
+        if self.chain.clamp_to_limits(&mut q_new) {
+            report.flags |= StatusFlags::SATURATED_LIMIT;
+        }
+        // A frame outside the limits must still respect the speed limit.
+        for i in 0..JOINTS {
+            let lim = self.chain.limits[i].max_speed * frame.dt;
+            q_new[i] = q_new[i].max(q[i] - lim).min(q[i] + lim);
+        }
+        let mut applied = SVector::<f64, JOINTS>::zeros();
+        for i in 0..JOINTS {
+            applied[i] = q_new[i] - q[i];
+        }
+        // The clamps may have bent the step: keep the best multiple α ∈ [0, 1] of what is
+        // left for the linear model, never a step it predicts to make the objective worse.
+        let ja = jac * applied;
+        let jj = ja.norm_squared();
+        if jj > 0.0 {
+            let alpha = (-t0.dot(&ja) / jj).clamp(0.0, 1.0);
+            if alpha < 1.0 {
+                for i in 0..JOINTS {
+                    q_new[i] = q[i] + alpha * applied[i];
+                    applied[i] *= alpha;
+                }
+            }
+        }
+        let predicted = t0 + jac * applied;
+        if predicted.norm() > 0.99 * t0.norm() {
+            report.flags |= StatusFlags::TARGET_UNREACHABLE;
+        }
+        q_new
+    }
+
+    /// Stage 5: the solve at the commanded joints (started from the prediction) → the `λ` the
+    /// host applies, and the objective there.
+    fn final_solve(
+        &mut self,
+        frame: &ComplianceFrame<M>,
+        q_new: &[f64; JOINTS],
+        report: &mut SolverReport,
+    ) -> SolveReport {
+        let tolerance = self.params.gs.tolerance;
+        let (bf, rep) = self.solve(frame, q_new, Target::Work, Start::Predicted, tolerance);
+        count_solve(report, &rep);
+        report.objective_after = evaluate_objective(frame, &self.lambda.work, &bf, &self.params).t;
+        rep
+    }
+
+    /// Stage 6: completes the report, checks that the joints and `λ` are finite, and writes the
+    /// command.
+    fn answer(
+        &mut self,
+        frame: &ComplianceFrame<M>,
+        q_new: &[f64; JOINTS],
+        final_rep: &SolveReport,
+        mut report: SolverReport,
+        cmd: &mut Command<M>,
+    ) -> Result<SolverReport, StepError> {
+        report.final_iterations = final_rep.iterations;
+        report.final_residual = final_rep.residual;
+        for i in 0..JOINTS {
+            report.delta_q[i] = q_new[i] - frame.q[i];
+        }
+        let m = frame.rows();
+        if !q_new.iter().all(|x| x.is_finite())
+            || !self.lambda.work[..m].iter().all(|x| x.is_finite())
+        {
+            return Err(StepError::NonFinite {
+                stage: "final solve",
+            });
+        }
+        self.write_command(frame, q_new, report, cmd);
+        Ok(report)
+    }
+
+    /// One constraint solve at the given joints, without the inverse update: the open-loop step
+    /// of a replayed trajectory. The same preparation, warm start and solver (base elimination,
+    /// active-set polish) as the base solve of [`Self::step`]; the command carries `q` and λ.
+    ///
+    /// # Errors
+    /// As [`Self::step`]: an invalid frame or parameters, a non-finite result.
+    pub fn solve_open_loop(
+        &mut self,
+        frame: &ComplianceFrame<M>,
+        q: &[f64; JOINTS],
+        cmd: &mut Command<M>,
+    ) -> Result<SolverReport, StepError> {
+        let m = self.prepare(frame)?;
+        let tolerance = self.params.gs.tolerance;
+        let (_, rep) = self.solve(frame, q, Target::Base, Start::Current, tolerance);
+        if !self.lambda.base[..m].iter().all(|x| x.is_finite()) {
+            return Err(StepError::NonFinite {
+                stage: "open-loop solve",
+            });
+        }
+        self.lambda.work[..m].copy_from_slice(&self.lambda.base[..m]);
+        let mut report = SolverReport::default();
+        count_solve(&mut report, &rep);
+        report.final_iterations = rep.iterations;
+        report.final_residual = rep.residual;
+        self.write_command(frame, q, report, cmd);
+        Ok(report)
+    }
+
+    /// The objective `T(q)` at joints `q` for `frame` (one constraint solve, from zero). For
+    /// tests and diagnostics; not part of the real-time path.
+    ///
+    /// # Errors
+    /// [`StepError::InvalidFrame`] when the frame fails validation.
+    pub fn objective_at(
+        &mut self,
+        frame: &ComplianceFrame<M>,
+        q: &[f64; JOINTS],
+    ) -> Result<Objective, StepError> {
+        self.prepare_blocks(frame)?;
+        let m = frame.rows();
+        self.delta[..m].copy_from_slice(&frame.delta_free[..m]);
+        self.lambda.work.fill(0.0);
+        let tolerance = self.params.gs.tolerance;
+        let (b, _) = self.solve(frame, q, Target::Work, Start::Current, tolerance);
+        Ok(evaluate_objective(
+            frame,
+            &self.lambda.work,
+            &b,
+            &self.params,
+        ))
+    }
+
+    /// Keeps λ (`lambda.work`) for the next warm start and writes the command.
+    fn write_command(
+        &mut self,
+        frame: &ComplianceFrame<M>,
+        q: &[f64; JOINTS],
+        report: SolverReport,
+        cmd: &mut Command<M>,
+    ) {
+        let m = frame.rows();
+        let l = &mut self.lambda;
+        l.prev[..m].copy_from_slice(&l.work[..m]);
+        l.prev_rows = m;
+        cmd.version = VERSION;
+        cmd.m = frame.m;
+        cmd.frame_sequence = frame.sequence;
+        cmd.q = *q;
+        cmd.lambda[..m].copy_from_slice(&l.work[..m]);
+        cmd.lambda[m..].fill(0.0);
+        cmd.report = report;
+    }
+}
+
+/// Adds one constraint solve to the step's report.
+fn count_solve(report: &mut SolverReport, r: &SolveReport) {
+    report.iterations = report.iterations.saturating_add(r.iterations);
+    report.solves += 1;
+    if !r.converged {
+        report.flags |= StatusFlags::NOT_CONVERGED;
+    }
+}
+
+/// Smallest eigenvalue of a symmetric 4×4 matrix (NaN-safe: 0 for non-finite input).
+fn smallest_eigenvalue(a: &Matrix4<f64>) -> f64 {
+    if !a.iter().all(|x| x.is_finite()) {
+        return 0.0;
+    }
+    let eig = nalgebra::SymmetricEigen::new(*a);
+    eig.eigenvalues.iter().fold(f64::INFINITY, |m, &x| m.min(x))
+}
