@@ -1,0 +1,336 @@
+//! The active set of a solution: which rows are free, tied to a friction bound or held, the
+//! dense LU factor of the free rows' linearised problem and their response `Z` to the base rows
+//! — used to refine a Gauss-Seidel iterate to round-off and to predict how the solution follows
+//! a change of the base rows.
+
+use super::{BASE, BlockGs, KIND_BILATERAL, KIND_CONTACT, KIND_SLIDING, KIND_UNILATERAL};
+use crate::math::{axpy, dot, max_abs};
+
+/// A tied axial row: `dλ_row = c · dλ_(lat, lat+1)` (indices of the lateral rows in the free set).
+#[derive(Clone, Copy, Debug, Default)]
+struct Tied {
+    row: u32,
+    lat: u32,
+    c: [f64; 2],
+}
+
+/// Dense LU factor of the linearised problem of the rows a solve left free (tied sliding rows
+/// folded in) and their linear response to the 6 base rows
+/// ([`BlockGs::factor_active_set`]). `M × M` storage (≈ `8 M²` bytes): keep it inside an
+/// owning struct that lives in a `static` or a `Box`.
+///
+/// Within one inverse step only the base rows' violation changes; while no row changes status
+/// the solution follows it affinely to first order, `λ(δ_b) ≈ λ_q + Z (δ_b − δ_b(q))`. The
+/// inverse step uses this to start each perturbed solve next to its answer, so Gauss-Seidel
+/// only has to confirm it (or repair a status change).
+#[derive(Clone, Debug)]
+pub struct ActiveSet<const M: usize> {
+    n: usize,
+    n_tied: usize,
+    valid: bool,
+    rows: [u32; M],
+    perm: [u32; M],
+    tied: [Tied; M],
+    lu: [[f64; M]; M],
+    response: [[f64; BASE]; M],
+    x: [f64; M],
+}
+
+crate::zeroed::impl_zeroable!(Tied { row, lat, c });
+crate::zeroed::impl_zeroable!(ActiveSet<const M> {
+    n,
+    n_tied,
+    valid,
+    rows,
+    perm,
+    tied,
+    lu,
+    response,
+    x,
+});
+
+impl<const M: usize> Default for ActiveSet<M> {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl<const M: usize> ActiveSet<M> {
+    /// An empty (invalid) set.
+    pub const fn new() -> Self {
+        Self {
+            n: 0,
+            n_tied: 0,
+            valid: false,
+            rows: [0; M],
+            perm: [0; M],
+            tied: [Tied {
+                row: 0,
+                lat: 0,
+                c: [0.0; 2],
+            }; M],
+            lu: [[0.0; M]; M],
+            response: [[0.0; BASE]; M],
+            x: [0.0; M],
+        }
+    }
+
+    /// Number of free rows of the last factorisation.
+    pub fn free_rows(&self) -> usize {
+        self.n
+    }
+
+    /// Number of tied (friction-saturated axial) rows of the last factorisation.
+    pub fn tied_rows(&self) -> usize {
+        self.n_tied
+    }
+
+    /// Whether the last factorisation succeeded.
+    pub fn is_valid(&self) -> bool {
+        self.valid
+    }
+}
+
+impl<const M: usize> BlockGs<M> {
+    /// Sorts the rows by what `lambda` does with them: *free* rows (bilateral rows,
+    /// unilateral/normal rows with `λ > 0`, sticking tangential rows, axial rows strictly inside
+    /// their bound), *tied* rows (axial rows on their bound: `λ_a = ±(μ_n |λ_l| + r_0)` follows
+    /// the lateral rows) and *held* rows (the rest: zero, or a sliding contact's tangential
+    /// force, kept at its current value).
+    fn classify(&self, lambda: &[f64; M], set: &mut ActiveSet<M>) {
+        let inside = |x: f64, bound: f64| x < bound * (1.0 - 1e-9);
+        set.n = 0;
+        set.n_tied = 0;
+        let push = |set: &mut ActiveSet<M>, row: usize| {
+            set.rows[set.n] = row as u32;
+            set.n += 1;
+        };
+        for b in &self.blocks[..self.n_blocks] {
+            let s = b.start as usize;
+            match b.kind {
+                KIND_BILATERAL => (0..b.len as usize).for_each(|i| push(set, s + i)),
+                KIND_UNILATERAL if lambda[s] > 0.0 => push(set, s),
+                KIND_CONTACT if lambda[s] > 0.0 => {
+                    push(set, s);
+                    let t = libm::hypot(lambda[s + 1], lambda[s + 2]);
+                    if inside(t, b.mu * lambda[s]) {
+                        push(set, s + 1);
+                        push(set, s + 2);
+                    }
+                }
+                KIND_SLIDING => {
+                    let k = set.n;
+                    push(set, s);
+                    push(set, s + 1);
+                    let lat = libm::hypot(lambda[s], lambda[s + 1]);
+                    let bound = b.mu * lat + b.r0;
+                    if inside(libm::fabs(lambda[s + 2]), bound) {
+                        push(set, s + 2);
+                    } else if lat > 0.0 {
+                        let sigma = if lambda[s + 2] < 0.0 { -1.0 } else { 1.0 };
+                        let c = sigma * b.mu / lat;
+                        set.tied[set.n_tied] = Tied {
+                            row: (s + 2) as u32,
+                            lat: k as u32,
+                            c: [c * lambda[s], c * lambda[s + 1]],
+                        };
+                        set.n_tied += 1;
+                    }
+                }
+                _ => {}
+            }
+        }
+    }
+
+    /// Factors the linearised problem of the rows `lambda` leaves free: with `u = dλ_F`,
+    /// `K u = dδ_F`, `K = W_FF + W_FT G` where `G` gives the tied axial rows' change from their
+    /// lateral rows (`dλ_a = ±μ_n λ̂_l · dλ_l`). `K` is not symmetric: dense LU with partial
+    /// pivoting (`2n³/3`). Also computes the free rows' response to the 6 base rows,
+    /// `Z = K⁻¹ E_base` (rows 0..6 must be bilateral and first, as in a frame). Returns `false`
+    /// (set invalid) when `K` is numerically singular or the base rows are not free.
+    pub fn factor_active_set(
+        &self,
+        w: &[[f64; M]; M],
+        lambda: &[f64; M],
+        set: &mut ActiveSet<M>,
+    ) -> bool {
+        #[cfg(target_arch = "x86_64")]
+        if crate::math::use_avx2() {
+            // SAFETY: AVX2 support was checked at run time.
+            return unsafe { self.factor_avx2(w, lambda, set) };
+        }
+        self.factor_inline(w, lambda, set)
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn factor_avx2(
+        &self,
+        w: &[[f64; M]; M],
+        lambda: &[f64; M],
+        set: &mut ActiveSet<M>,
+    ) -> bool {
+        self.factor_inline(w, lambda, set)
+    }
+
+    #[inline(always)]
+    fn factor_inline(&self, w: &[[f64; M]; M], lambda: &[f64; M], set: &mut ActiveSet<M>) -> bool {
+        set.valid = false;
+        self.classify(lambda, set);
+        let n = set.n;
+        if n < BASE || (0..BASE).any(|i| set.rows[i] as usize != i) {
+            return false;
+        }
+        let mut kmax = 0.0f64;
+        for i in 0..n {
+            let ri = set.rows[i] as usize;
+            let k = &mut set.lu[i];
+            for j in 0..n {
+                k[j] = w[ri][set.rows[j] as usize];
+            }
+            for t in &set.tied[..set.n_tied] {
+                let wa = w[ri][t.row as usize];
+                k[t.lat as usize] += t.c[0] * wa;
+                k[t.lat as usize + 1] += t.c[1] * wa;
+            }
+            kmax = kmax.max(max_abs(&k[..n]));
+        }
+        // Right-looking LU, row-major, rows swapped physically.
+        for k in 0..n {
+            let mut p = k;
+            let mut best = libm::fabs(set.lu[k][k]);
+            for i in (k + 1)..n {
+                let v = libm::fabs(set.lu[i][k]);
+                if v > best {
+                    best = v;
+                    p = i;
+                }
+            }
+            if !(best > 1e-14 * kmax) {
+                return false;
+            }
+            set.perm[k] = p as u32;
+            if p != k {
+                set.lu.swap(p, k);
+            }
+            let (top, bottom) = set.lu.split_at_mut(k + 1);
+            let pivot_row = &top[k];
+            let inv = 1.0 / pivot_row[k];
+            for row in bottom[..n - k - 1].iter_mut() {
+                let l = row[k] * inv;
+                row[k] = l;
+                if l != 0.0 {
+                    axpy(-l, &pivot_row[k + 1..n], &mut row[k + 1..n]);
+                }
+            }
+        }
+        for c in 0..BASE {
+            let x = &mut set.x;
+            x[..n].fill(0.0);
+            x[c] = 1.0;
+            lu_solve(&set.lu, &set.perm, n, x);
+            for k in 0..n {
+                set.response[k][c] = x[k];
+            }
+        }
+        set.valid = set.response[..n]
+            .iter()
+            .all(|z| z.iter().all(|v| v.is_finite()));
+        set.valid
+    }
+
+    /// One Newton step on the free and tied rows of `set` from `lambda` (held rows fixed):
+    /// `u = K⁻¹ (δ_F − (W λ)_F)`, `λ_F += u`, then each tied row is put back exactly on its bound
+    /// `±(μ_n |λ_l| + r_0)`. From a Gauss-Seidel iterate with the right statuses this lands on the
+    /// solution to round-off (the bound is the only nonlinearity). Returns `false` when the set
+    /// is invalid or the step is not finite (then `lambda` is unchanged).
+    pub fn refine_on_active_set(
+        &self,
+        w: &[[f64; M]; M],
+        delta: &[f64; M],
+        lambda: &mut [f64; M],
+        set: &mut ActiveSet<M>,
+    ) -> bool {
+        if !set.valid {
+            return false;
+        }
+        let (n, m) = (set.n, self.m);
+        for k in 0..n {
+            let r = set.rows[k] as usize;
+            set.x[k] = delta[r] - dot(&w[r][..m], &lambda[..m]);
+        }
+        lu_solve(&set.lu, &set.perm, n, &mut set.x);
+        if !set.x[..n].iter().all(|v| v.is_finite()) {
+            return false;
+        }
+        for k in 0..n {
+            lambda[set.rows[k] as usize] += set.x[k];
+        }
+        for t in &set.tied[..set.n_tied] {
+            let a = t.row as usize;
+            let l = set.rows[t.lat as usize] as usize;
+            let (mu, r0) = self.sliding_law(a);
+            let sigma = if lambda[a] < 0.0 { -1.0 } else { 1.0 };
+            lambda[a] = sigma * (mu * libm::hypot(lambda[l], lambda[l + 1]) + r0);
+        }
+        true
+    }
+
+    /// `(μ_n, r_0)` of the sliding group owning axial row `a`.
+    fn sliding_law(&self, a: usize) -> (f64, f64) {
+        self.blocks[..self.n_blocks]
+            .iter()
+            .find(|b| b.kind == KIND_SLIDING && b.start as usize + 2 == a)
+            .map_or((0.0, 0.0), |b| (b.mu, b.r0))
+    }
+
+    /// Linear prediction of the solution after the base-row violation changes by `d_base`:
+    /// `λ_F = λ_ref,F + Z d_base`, tied rows follow their lateral rows, held rows unchanged
+    /// (exact to first order while no row changes status). Returns `false` when the set is
+    /// invalid (then `out = λ_ref`).
+    pub fn predict_base_change(
+        &self,
+        set: &ActiveSet<M>,
+        lambda_ref: &[f64; M],
+        d_base: &[f64; BASE],
+        out: &mut [f64; M],
+    ) -> bool {
+        let m = self.m;
+        out[..m].copy_from_slice(&lambda_ref[..m]);
+        if !set.valid {
+            return false;
+        }
+        let mut du = [0.0f64; M];
+        for k in 0..set.n {
+            let z = &set.response[k];
+            let mut acc = 0.0;
+            for c in 0..BASE {
+                acc += z[c] * d_base[c];
+            }
+            du[k] = acc;
+            out[set.rows[k] as usize] += acc;
+        }
+        for t in &set.tied[..set.n_tied] {
+            let l = t.lat as usize;
+            out[t.row as usize] += t.c[0] * du[l] + t.c[1] * du[l + 1];
+        }
+        true
+    }
+}
+
+/// Solves `K x = b` in place from the LU factors (`P K = L U`, `L` unit lower and `U` upper
+/// stored together row-major, `perm[k]` the row swapped with `k` at step `k`).
+fn lu_solve<const M: usize>(lu: &[[f64; M]; M], perm: &[u32; M], n: usize, x: &mut [f64; M]) {
+    for k in 0..n {
+        x.swap(k, perm[k] as usize);
+    }
+    for i in 0..n {
+        x[i] -= dot(&lu[i][..i], &x[..i]);
+    }
+    // Column-oriented back substitution would need columns of U; rows are contiguous, so
+    // solve row by row from the bottom.
+    for i in (0..n).rev() {
+        let s = dot(&lu[i][i + 1..n], &x[i + 1..n]);
+        x[i] = (x[i] - s) / lu[i][i];
+    }
+}

@@ -1,0 +1,268 @@
+//! The solve loop and one projected Gauss-Seidel sweep: each group's exact local update, the
+//! residual kept in step with `λ`, the stopping test.
+
+use super::project::Sym2;
+use super::{
+    BlockGs, GsParams, KIND_BILATERAL, KIND_CONTACT, KIND_SLIDING, KIND_UNILATERAL, SolveReport,
+};
+use crate::math::{axpy, axpy3, dot, max_abs};
+
+impl<const M: usize> BlockGs<M> {
+    /// Solves `w = W λ − δ` under the group laws, warm-starting from `lambda`, which receives the
+    /// result. `w` must be the matrix given to the last `prepare`; rows `m..` are left untouched.
+    /// Never loops unbounded; finite input gives finite output.
+    pub fn solve(
+        &mut self,
+        w: &[[f64; M]; M],
+        delta: &[f64; M],
+        lambda: &mut [f64; M],
+        params: &GsParams,
+    ) -> SolveReport {
+        let m = self.m;
+        if m == 0 {
+            return SolveReport {
+                converged: true,
+                ..SolveReport::default()
+            };
+        }
+        // Initial residual and the problem scale.
+        let mut scale = max_abs(&delta[..m]);
+        for i in 0..m {
+            if !lambda[i].is_finite() {
+                lambda[i] = 0.0;
+            }
+            scale = scale.max(libm::fabs(self.diag[i] * lambda[i]));
+        }
+        self.residual_dispatch(w, delta, lambda);
+        if !(scale > 0.0) {
+            lambda[..m].fill(0.0);
+            return SolveReport {
+                converged: true,
+                ..SolveReport::default()
+            };
+        }
+        let tol = if params.tolerance.is_finite() {
+            params.tolerance.max(0.0)
+        } else {
+            0.0
+        };
+        let mut report = SolveReport::default();
+        while report.iterations < params.max_iterations {
+            let omega = if params.relaxation.is_finite() {
+                params.relaxation.clamp(0.1, 1.9)
+            } else {
+                1.0
+            };
+            let change = self.sweep_dispatch(w, lambda, omega);
+            report.iterations += 1;
+            report.residual = change / scale;
+            if !(report.residual > tol) {
+                report.converged = report.residual <= tol;
+                break;
+            }
+        }
+        if params.polish && !self.frictional && self.polish(w, delta, lambda, scale) {
+            report.converged = true;
+            report.polished = true;
+            report.residual = 0.0;
+        }
+        report
+    }
+
+    /// `w = W λ − δ` over the used rows, with the AVX2 copy when available.
+    fn residual_dispatch(&mut self, w: &[[f64; M]; M], delta: &[f64; M], lambda: &[f64; M]) {
+        #[cfg(target_arch = "x86_64")]
+        if crate::math::use_avx2() {
+            // SAFETY: AVX2 support was checked at run time.
+            unsafe { self.residual_avx2(w, delta, lambda) };
+            return;
+        }
+        self.residual_inline(w, delta, lambda);
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn residual_avx2(&mut self, w: &[[f64; M]; M], delta: &[f64; M], lambda: &[f64; M]) {
+        self.residual_inline(w, delta, lambda);
+    }
+
+    #[inline(always)]
+    fn residual_inline(&mut self, w: &[[f64; M]; M], delta: &[f64; M], lambda: &[f64; M]) {
+        let m = self.m;
+        for i in 0..m {
+            self.w[i] = dot(&w[i][..m], &lambda[..m]) - delta[i];
+        }
+    }
+
+    /// One sweep, with the AVX2 copy of the loops when the CPU has it (same arithmetic, so
+    /// the same result up to the order of the additions inside `dot`).
+    fn sweep_dispatch(&mut self, w: &[[f64; M]; M], lambda: &mut [f64; M], omega: f64) -> f64 {
+        #[cfg(target_arch = "x86_64")]
+        if crate::math::use_avx2() {
+            // SAFETY: AVX2 support was checked at run time.
+            return unsafe { self.sweep_avx2(w, lambda, omega) };
+        }
+        self.sweep(w, lambda, omega)
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn sweep_avx2(&mut self, w: &[[f64; M]; M], lambda: &mut [f64; M], omega: f64) -> f64 {
+        self.sweep(w, lambda, omega)
+    }
+
+    /// One sweep over every group; returns the largest `|W_ii Δλ_i|`. Each group computes its
+    /// update from its own diagonal block, then applies it to `w` in one fused pass over the
+    /// group's rows of `W` (one read-modify-write of `w` per group, not per row).
+    #[inline(always)]
+    fn sweep(&mut self, w: &[[f64; M]; M], lambda: &mut [f64; M], omega: f64) -> f64 {
+        let mut s = Sweep {
+            w,
+            res: &mut self.w,
+            lambda,
+            diag: &self.diag,
+            m: self.m,
+            change: 0.0,
+        };
+        for b in &self.blocks[..self.n_blocks] {
+            let start = b.start as usize;
+            let f = self.factors[start..].as_flattened();
+            match b.kind {
+                KIND_BILATERAL => s.bilateral(start, b.len as usize, f, omega),
+                KIND_UNILATERAL => s.unilateral(start, f[0], omega),
+                KIND_CONTACT => s.contact(start, b.mu, f),
+                KIND_SLIDING => s.sliding(start, b.mu, b.r0, f, omega),
+                _ => {}
+            }
+        }
+        // NaN-safe: a NaN change must not read as converged.
+        if s.change.is_nan() {
+            f64::INFINITY
+        } else {
+            s.change
+        }
+    }
+}
+
+/// What one sweep updates: `λ`, the residual `w = W λ − δ` kept in step with it, and the largest
+/// `|W_ii Δλ_i|` so far. Each method is the exact local update of one group kind, `f` its packed
+/// factors (from `prepare`), `s` its first row.
+struct Sweep<'a, const M: usize> {
+    w: &'a [[f64; M]; M],
+    res: &'a mut [f64; M],
+    lambda: &'a mut [f64; M],
+    diag: &'a [f64; M],
+    m: usize,
+    change: f64,
+}
+
+impl<const M: usize> Sweep<'_, M> {
+    /// Records the change `d` of row `i`.
+    #[inline(always)]
+    fn record(&mut self, i: usize, d: f64) {
+        self.change = self.change.max(libm::fabs(d * self.diag[i]));
+    }
+
+    /// Bilateral block of `n` rows: `λ_g ← λ_g − ω W_gg⁻¹ w_g`.
+    #[inline(always)]
+    fn bilateral(&mut self, s: usize, n: usize, f: &[f64], omega: f64) {
+        let (w, m) = (self.w, self.m);
+        let mut d = [0.0f64; 6];
+        for i in 0..n {
+            let mut acc = 0.0;
+            for j in 0..n {
+                acc += f[i * n + j] * self.res[s + j];
+            }
+            d[i] = -omega * acc;
+        }
+        for i in 0..n {
+            self.lambda[s + i] += d[i];
+            self.record(s + i, d[i]);
+        }
+        let mut i = 0;
+        while i < n {
+            let r = |k: usize| &w[s + (i + k).min(n - 1)][..m];
+            let c = |k: usize| if i + k < n { d[i + k] } else { 0.0 };
+            axpy3([c(0), c(1), c(2)], r(0), r(1), r(2), &mut self.res[..m]);
+            i += 3;
+        }
+    }
+
+    /// Unilateral row: `λ ← max(0, λ − ω w / W_ii)`, `inv_diag = 1 / W_ii`.
+    #[inline(always)]
+    fn unilateral(&mut self, s: usize, inv_diag: f64, omega: f64) {
+        let (w, m) = (self.w, self.m);
+        let new = (self.lambda[s] - omega * self.res[s] * inv_diag).max(0.0);
+        let d = new - self.lambda[s];
+        if d != 0.0 {
+            self.lambda[s] = new;
+            axpy(d, &w[s][..m], &mut self.res[..m]);
+            self.record(s, d);
+        }
+    }
+
+    /// Coulomb contact `[n, t1, t2]`: the normal row as a unilateral row (ω = 1), then the
+    /// tangential pair projected exactly onto the disk `|λ_t| ≤ μ λ_n`.
+    #[inline(always)]
+    fn contact(&mut self, s: usize, mu: f64, f: &[f64]) {
+        let (w, m) = (self.w, self.m);
+        let lambda = &mut *self.lambda;
+        let new_n = (lambda[s] - self.res[s] * f[0]).max(0.0);
+        let dn = new_n - lambda[s];
+        lambda[s] = new_n;
+        let e = Sym2::unpack(&f[1..11]);
+        let (t1, t2) = (lambda[s + 1], lambda[s + 2]);
+        // w_t after the normal update, minus its λ_t part.
+        let g1 = self.res[s + 1] + dn * w[s][s + 1] - (e.a * t1 + e.b * t2);
+        let g2 = self.res[s + 2] + dn * w[s][s + 2] - (e.b * t1 + e.c * t2);
+        let (x1, x2) = e.disk_minimiser(g1, g2, mu * new_n);
+        let (d1, d2) = (x1 - t1, x2 - t2);
+        lambda[s + 1] = x1;
+        lambda[s + 2] = x2;
+        if dn != 0.0 || d1 != 0.0 || d2 != 0.0 {
+            axpy3(
+                [dn, d1, d2],
+                &w[s][..m],
+                &w[s + 1][..m],
+                &w[s + 2][..m],
+                &mut self.res[..m],
+            );
+        }
+        self.record(s, dn);
+        self.record(s + 1, d1);
+        self.record(s + 2, d2);
+    }
+
+    /// Sliding point `[l1, l2, axial]`: the lateral pair as a bilateral 2×2 block, then the axial
+    /// row clamped to `|λ_a| ≤ μ_n |λ_l| + r_0`.
+    #[inline(always)]
+    fn sliding(&mut self, s: usize, mu: f64, r0: f64, f: &[f64], omega: f64) {
+        let (w, m) = (self.w, self.m);
+        let lambda = &mut *self.lambda;
+        let e = Sym2::unpack(&f[0..10]);
+        let (d1, d2) = e.solve(-self.res[s], -self.res[s + 1]);
+        let (d1, d2) = (omega * d1, omega * d2);
+        lambda[s] += d1;
+        lambda[s + 1] += d2;
+        // Plain sqrt, not `hypot` (5× cheaper; overflow would need |λ| > 1e154 N,
+        // and an infinite bound still clamps to a finite λ_a).
+        let lat = libm::sqrt(lambda[s] * lambda[s] + lambda[s + 1] * lambda[s + 1]);
+        let bound = mu * lat + r0;
+        let a = s + 2;
+        // w_a after the lateral update.
+        let wa = self.res[a] + d1 * w[s][a] + d2 * w[s + 1][a];
+        let new = (lambda[a] - omega * wa * f[10]).max(-bound).min(bound);
+        let da = new - lambda[a];
+        lambda[a] = new;
+        axpy3(
+            [d1, d2, da],
+            &w[s][..m],
+            &w[s + 1][..m],
+            &w[a][..m],
+            &mut self.res[..m],
+        );
+        self.record(s, d1);
+        self.record(s + 1, d2);
+        self.record(a, da);
+    }
+}
