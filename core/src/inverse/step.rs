@@ -14,14 +14,14 @@ impl<const M: usize> Controller<M> {
     ///
     /// The stages (module docs for the equations):
     /// 1. validate the parameters and the frame, factor the diagonal blocks, warm start
-    ///    ([`Self::prepare`]);
-    /// 2. base solve at the frame's joints and its objective `T(q)` ([`Self::base_solve`]);
-    ///    within tolerance: hold ([`Self::hold`]) and skip to 6;
-    /// 3. Jacobian by forward differences ([`Self::jacobian`]);
+    ///    (`prepare`);
+    /// 2. base solve at the frame's joints and its objective `T(q)` (`base_solve`);
+    ///    within tolerance: hold (`hold`) and skip to 6;
+    /// 3. Jacobian by forward differences (`jacobian`);
     /// 4. damped Newton step within the trust region, speed and joint limits
-    ///    ([`Self::newton_step`]);
-    /// 5. final solve at the commanded joints ([`Self::final_solve`]);
-    /// 6. answer: check and write the command ([`Self::answer`]).
+    ///    (`newton_step`);
+    /// 5. final solve at the commanded joints (`final_solve`);
+    /// 6. answer: check and write the command (`answer`).
     ///
     /// # Errors
     /// [`StepError`] when the frame or the parameters are invalid; `cmd` is then untouched.

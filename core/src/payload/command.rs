@@ -1,0 +1,123 @@
+//! The core's answer to one frame (core → host) and the report of the step.
+
+use super::{JOINTS, VERSION};
+use crate::zeroed::{zero_out, zeroed_in_place};
+use core::mem::MaybeUninit;
+
+/// Status flags of a [`SolverReport`] (bit set in `flags`).
+#[derive(Clone, Copy, Debug)]
+pub struct StatusFlags;
+
+impl StatusFlags {
+    /// The step was scaled down to respect a joint speed limit.
+    pub const SATURATED_SPEED: u32 = 1 << 0;
+    /// A joint was clamped at a position limit.
+    pub const SATURATED_LIMIT: u32 = 1 << 1;
+    /// The linearised model predicts no useful decrease of the objective (target out of reach
+    /// from here: singular, limited or saturated).
+    pub const TARGET_UNREACHABLE: u32 = 1 << 2;
+    /// At least one constraint solve hit its iteration cap.
+    pub const NOT_CONVERGED: u32 = 1 << 3;
+    /// The objective was within tolerance: no Jacobian, no motion.
+    pub const WITHIN_TOLERANCE: u32 = 1 << 4;
+    /// The damping of the pseudo-inverse was raised near a singularity.
+    pub const NEAR_SINGULAR: u32 = 1 << 5;
+    /// The step was scaled down to the trust region on the needle-base motion
+    /// (`InverseParams::max_base_step`).
+    pub const STEP_LIMITED: u32 = 1 << 6;
+}
+
+/// Report of one inverse step, carried in [`Command::report`].
+#[derive(Clone, Copy, Debug, PartialEq, Default)]
+#[repr(C)]
+pub struct SolverReport {
+    /// Gauss-Seidel sweeps summed over every solve of the step.
+    pub iterations: u32,
+    /// Number of constraint solves in the step (1, or 8 with a Jacobian).
+    pub solves: u32,
+    /// Bit set of [`StatusFlags`].
+    pub flags: u32,
+    /// Sweeps of the final solve.
+    pub final_iterations: u32,
+    /// Residual of the final solve (largest `|W_ii Δλ_i|` of the last sweep over `‖δ‖∞`) [-].
+    pub final_residual: f64,
+    /// Objective `T(q)` at the frame's joints: e [mm] and weighted angle [mm].
+    pub objective: [f64; 4],
+    /// Objective at the commanded joints, from the final solve [mm].
+    pub objective_after: [f64; 4],
+    /// Applied joint step `Δq` [rad].
+    pub delta_q: [f64; JOINTS],
+}
+
+/// The core's answer to one frame (core → host).
+#[derive(Clone, Copy, Debug)]
+#[repr(C)]
+pub struct Command<const M: usize> {
+    /// Layout version, [`VERSION`].
+    pub version: u32,
+    /// Number of rows of `lambda` used (the frame's `m`).
+    pub m: u32,
+    /// Sequence number of the frame this answers.
+    pub frame_sequence: u64,
+    /// Commanded joints [rad].
+    pub q: [f64; JOINTS],
+    /// Constraint forces at the commanded joints [N or N·mm], first `m` used; apply as
+    /// `x = x_free + K⁻¹ Hᵀ λ`.
+    pub lambda: [f64; M],
+    /// How the step went.
+    pub report: SolverReport,
+}
+
+crate::zeroed::impl_zeroable!(SolverReport {
+    iterations,
+    solves,
+    flags,
+    final_iterations,
+    final_residual,
+    objective,
+    objective_after,
+    delta_q,
+});
+crate::zeroed::impl_zeroable!(Command<const M> {
+    version,
+    m,
+    frame_sequence,
+    q,
+    lambda,
+    report,
+});
+
+impl<const M: usize> Command<M> {
+    /// Initialises a command in place: all zero, `version = VERSION`.
+    pub fn init_in_place(this: &mut MaybeUninit<Self>) -> &mut Self {
+        zeroed_in_place(this).stamp()
+    }
+
+    /// A command on the heap in the state of [`Self::init_in_place`], built there.
+    ///
+    /// # Example
+    /// ```
+    /// use needle_core::{Command, VERSION};
+    ///
+    /// let cmd = Command::<192>::new_boxed();
+    /// assert_eq!(cmd.version, VERSION);
+    /// assert_eq!(cmd.validate(), Ok(()));
+    /// ```
+    #[cfg(feature = "alloc")]
+    pub fn new_boxed() -> alloc::boxed::Box<Self> {
+        let mut b = crate::zeroed::boxed_zeroed::<Self>();
+        b.stamp();
+        b
+    }
+
+    /// Resets an existing command to the state of [`Self::init_in_place`].
+    pub fn reset(&mut self) {
+        zero_out(self).stamp();
+    }
+
+    /// Writes the layout version into a zeroed command.
+    fn stamp(&mut self) -> &mut Self {
+        self.version = VERSION;
+        self
+    }
+}

@@ -1,0 +1,321 @@
+//! Checks on receipt: every payload that crossed a process boundary is validated before use
+//! ([`ComplianceFrame::validate`], [`Command::validate`]); what is wrong is a [`ValidationError`].
+
+use super::{BASE_ROWS, Command, ComplianceFrame, GroupKind, RowGroup, VERSION};
+use core::fmt;
+
+/// What is wrong with a group layout (see [`ValidationError::GroupLayout`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum LayoutFault {
+    /// The kind value is unknown.
+    BadKind,
+    /// The length does not fit the kind.
+    LengthMismatch,
+    /// The group does not start where the previous one ended (overlap or gap).
+    NotContiguous,
+    /// The group reaches past row `m`.
+    OutOfRange,
+    /// The groups end before row `m`.
+    RowsNotCovered,
+    /// Rows 0..6 are not one bilateral group of 6 (the needle-base rows).
+    BaseRows,
+}
+
+/// Why a payload was rejected.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[non_exhaustive]
+pub enum ValidationError {
+    /// The `version` field does not match [`VERSION`].
+    VersionMismatch {
+        /// Version found in the payload.
+        found: u32,
+        /// Version this build understands.
+        expected: u32,
+    },
+    /// A count exceeds the capacity of the type.
+    CapacityExceeded {
+        /// Requested count (rows or groups).
+        requested: usize,
+        /// Capacity `M`.
+        capacity: usize,
+    },
+    /// Fewer rows than the 6 base rows.
+    TooFewRows {
+        /// Rows given.
+        m: usize,
+        /// Rows required.
+        min: usize,
+    },
+    /// The row-group table is inconsistent.
+    GroupLayout {
+        /// Index of the offending group.
+        group: usize,
+        /// What is wrong.
+        fault: LayoutFault,
+    },
+    /// A used value is NaN or infinite.
+    NonFinite {
+        /// Field name.
+        field: &'static str,
+        /// Flat index within the field (row-major for matrices).
+        index: usize,
+    },
+    /// A friction coefficient or offset is negative.
+    NegativeFriction {
+        /// Index of the offending group.
+        group: usize,
+    },
+    /// A diagonal entry of W is not positive.
+    NonPositiveDiagonal {
+        /// Row of the entry.
+        row: usize,
+    },
+    /// W is not symmetric (relative tolerance 1e-8 of `sqrt(W_ii W_jj)`).
+    NotSymmetric {
+        /// Row of the entry.
+        row: usize,
+        /// Column of the entry.
+        col: usize,
+    },
+    /// `r_free` is not a rotation matrix (tolerance 1e-6).
+    NotRotation,
+    /// A scalar is outside its allowed range (e.g. `dt ≤ 0`, negative depth).
+    OutOfRange {
+        /// Field name.
+        field: &'static str,
+    },
+}
+
+impl fmt::Display for ValidationError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match *self {
+            Self::VersionMismatch { found, expected } => {
+                write!(f, "payload version {found}, expected {expected}")
+            }
+            Self::CapacityExceeded {
+                requested,
+                capacity,
+            } => {
+                write!(f, "{requested} exceeds the capacity {capacity}")
+            }
+            Self::TooFewRows { m, min } => write!(f, "{m} rows, at least {min} required"),
+            Self::GroupLayout { group, fault } => write!(f, "row group {group}: {fault:?}"),
+            Self::NonFinite { field, index } => write!(f, "non-finite value in {field}[{index}]"),
+            Self::NegativeFriction { group } => write!(f, "negative friction in group {group}"),
+            Self::NonPositiveDiagonal { row } => write!(f, "W[{row}][{row}] is not positive"),
+            Self::NotSymmetric { row, col } => write!(f, "W[{row}][{col}] != W[{col}][{row}]"),
+            Self::NotRotation => write!(f, "r_free is not a rotation matrix"),
+            Self::OutOfRange { field } => write!(f, "{field} is out of range"),
+        }
+    }
+}
+
+impl core::error::Error for ValidationError {}
+
+fn check_finite(field: &'static str, v: &[f64]) -> Result<(), ValidationError> {
+    match v.iter().position(|x| !x.is_finite()) {
+        Some(index) => Err(ValidationError::NonFinite { field, index }),
+        None => Ok(()),
+    }
+}
+
+/// Validates a row-group table for `m` rows and capacity `capacity`: known kinds, lengths fitting
+/// their kind, groups contiguous from row 0 and covering exactly `0..m`, finite non-negative
+/// friction. With `base_rows`, group 0 must be the 6-row bilateral base group.
+///
+/// # Errors
+/// The first inconsistency found.
+pub fn validate_groups(
+    groups: &[RowGroup],
+    m: usize,
+    capacity: usize,
+    base_rows: bool,
+) -> Result<(), ValidationError> {
+    check_capacity(m, capacity)?;
+    check_capacity(groups.len(), capacity)?;
+    let mut next = 0usize;
+    for (g, grp) in groups.iter().enumerate() {
+        let layout = |fault| ValidationError::GroupLayout { group: g, fault };
+        let kind = GroupKind::from_raw(grp.kind).ok_or(layout(LayoutFault::BadKind))?;
+        let len = grp.len as usize;
+        if !kind.accepts_len(len) {
+            return Err(layout(LayoutFault::LengthMismatch));
+        }
+        if grp.start as usize != next {
+            return Err(layout(LayoutFault::NotContiguous));
+        }
+        next += len;
+        if next > m {
+            return Err(layout(LayoutFault::OutOfRange));
+        }
+        if g == 0 && base_rows && (kind != GroupKind::Bilateral || len != BASE_ROWS) {
+            return Err(layout(LayoutFault::BaseRows));
+        }
+        if matches!(kind, GroupKind::Contact | GroupKind::Sliding) {
+            if !grp.mu.is_finite() {
+                return Err(ValidationError::NonFinite {
+                    field: "groups.mu",
+                    index: g,
+                });
+            }
+            if !grp.r0.is_finite() {
+                return Err(ValidationError::NonFinite {
+                    field: "groups.r0",
+                    index: g,
+                });
+            }
+            if grp.mu < 0.0 || grp.r0 < 0.0 {
+                return Err(ValidationError::NegativeFriction { group: g });
+            }
+        }
+    }
+    if next != m {
+        return Err(ValidationError::GroupLayout {
+            group: groups.len(),
+            fault: LayoutFault::RowsNotCovered,
+        });
+    }
+    Ok(())
+}
+
+/// Validates the used `m × m` block of a compliance matrix: finite, positive diagonal, symmetric.
+///
+/// # Errors
+/// The first offending entry.
+pub fn validate_compliance<const M: usize>(
+    w: &[[f64; M]; M],
+    m: usize,
+) -> Result<(), ValidationError> {
+    let m = m.min(M);
+    for (i, row) in w.iter().enumerate().take(m) {
+        if let Some(j) = row[..m].iter().position(|x| !x.is_finite()) {
+            return Err(ValidationError::NonFinite {
+                field: "w",
+                index: i * M + j,
+            });
+        }
+        if row[i] <= 0.0 {
+            return Err(ValidationError::NonPositiveDiagonal { row: i });
+        }
+    }
+    let mut root = [0.0f64; M];
+    for i in 0..m {
+        root[i] = libm::sqrt(w[i][i]);
+    }
+    for i in 0..m {
+        let tol_i = 1e-8 * root[i];
+        for j in 0..i {
+            if libm::fabs(w[i][j] - w[j][i]) > tol_i * root[j] {
+                return Err(ValidationError::NotSymmetric { row: i, col: j });
+            }
+        }
+    }
+    Ok(())
+}
+
+impl<const M: usize> ComplianceFrame<M> {
+    /// Checks the frame on receipt.
+    ///
+    /// Checks: version, `6 ≤ m ≤ M`, group table (kinds, lengths, contiguous cover of `0..m`, base
+    /// group first), finite values in every used entry, non-negative friction, positive diagonal
+    /// and symmetry of W, `r_free` a rotation, `dt > 0`, `insertion_depth ≥ 0`.
+    ///
+    /// # Errors
+    /// The first problem found, as a [`ValidationError`].
+    pub fn validate(&self) -> Result<(), ValidationError> {
+        check_version(self.version)?;
+        let m = self.m as usize;
+        check_capacity(m, M)?;
+        if m < BASE_ROWS {
+            return Err(ValidationError::TooFewRows { m, min: BASE_ROWS });
+        }
+        let count = self.group_count as usize;
+        check_capacity(count, M)?;
+        validate_groups(&self.groups[..count], m, M, true)?;
+        validate_compliance(&self.w, m)?;
+        check_finite("delta_free", &self.delta_free[..m])?;
+        check_finite("p_free", &self.p_free)?;
+        check_finite("r_free", self.r_free.as_flattened())?;
+        check_finite("o_free", &self.o_free)?;
+        for (k, row) in self.c.iter().enumerate() {
+            if let Some(j) = row[..m].iter().position(|x| !x.is_finite()) {
+                return Err(ValidationError::NonFinite {
+                    field: "c",
+                    index: k * M + j,
+                });
+            }
+        }
+        check_finite(
+            "insertion_depth",
+            core::slice::from_ref(&self.insertion_depth),
+        )?;
+        check_finite("q", &self.q)?;
+        check_finite("dt", core::slice::from_ref(&self.dt))?;
+        if self.dt <= 0.0 {
+            return Err(ValidationError::OutOfRange { field: "dt" });
+        }
+        if self.insertion_depth < 0.0 {
+            return Err(ValidationError::OutOfRange {
+                field: "insertion_depth",
+            });
+        }
+        check_rotation(&self.r_free)
+    }
+}
+
+impl<const M: usize> Command<M> {
+    /// Checks a received command: version, `m ≤ M`, finite joints, forces and report.
+    ///
+    /// # Errors
+    /// The first problem found.
+    pub fn validate(&self) -> Result<(), ValidationError> {
+        check_version(self.version)?;
+        let m = self.m as usize;
+        check_capacity(m, M)?;
+        check_finite("q", &self.q)?;
+        check_finite("lambda", &self.lambda[..m])?;
+        check_finite("report.delta_q", &self.report.delta_q)?;
+        Ok(())
+    }
+}
+
+/// `r` (row-major) is a rotation: orthonormal to 1e-6 and `det > 0`.
+fn check_rotation(r: &[[f64; 3]; 3]) -> Result<(), ValidationError> {
+    for i in 0..3 {
+        for j in 0..3 {
+            let d = r[0][i] * r[0][j] + r[1][i] * r[1][j] + r[2][i] * r[2][j];
+            let e = if i == j { 1.0 } else { 0.0 };
+            if libm::fabs(d - e) > 1e-6 {
+                return Err(ValidationError::NotRotation);
+            }
+        }
+    }
+    let det = r[0][0] * (r[1][1] * r[2][2] - r[1][2] * r[2][1])
+        - r[0][1] * (r[1][0] * r[2][2] - r[1][2] * r[2][0])
+        + r[0][2] * (r[1][0] * r[2][1] - r[1][1] * r[2][0]);
+    if det <= 0.0 {
+        return Err(ValidationError::NotRotation);
+    }
+    Ok(())
+}
+
+fn check_version(found: u32) -> Result<(), ValidationError> {
+    if found != VERSION {
+        return Err(ValidationError::VersionMismatch {
+            found,
+            expected: VERSION,
+        });
+    }
+    Ok(())
+}
+
+fn check_capacity(requested: usize, capacity: usize) -> Result<(), ValidationError> {
+    if requested > capacity {
+        return Err(ValidationError::CapacityExceeded {
+            requested,
+            capacity,
+        });
+    }
+    Ok(())
+}
