@@ -98,38 +98,10 @@ pub fn solve_ik<const N: usize>(
     seed: &[f64; N],
     params: &IkParams,
 ) -> Result<IkReport<N>, IkError> {
-    let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
-    if !finite(&position) {
-        return Err(IkError::NonFinite { field: "position" });
-    }
-    if !finite(&axis) {
-        return Err(IkError::NonFinite { field: "axis" });
-    }
-    if !finite(seed) {
-        return Err(IkError::NonFinite { field: "seed" });
-    }
-    let pr = [
-        params.position_tolerance,
-        params.angle_tolerance,
-        params.damping,
-        params.axis_weight,
-        params.seed_gain,
-        params.max_step,
-    ];
-    if !finite(&pr) {
-        return Err(IkError::NonFinite { field: "params" });
-    }
+    let a = check_input(&position, &axis, seed, params)?;
     let target = Vector3::from(position);
-    let a = Vector3::from(axis);
-    let an = a.norm();
-    if !(an > 0.0) {
-        return Err(IkError::ZeroAxis);
-    }
-    let a = a / an;
     let mut q = *seed;
     chain.clamp_to_limits(&mut q);
-    let lam2 = params.damping * params.damping;
-    let wa = params.axis_weight;
     let mut report = IkReport {
         q,
         converged: false,
@@ -155,58 +127,129 @@ pub fn solve_ik<const N: usize>(
             return Ok(report);
         }
         report.iterations += 1;
-        // Axis error: rotation vector taking z onto a (exact angle, not sin), roll removed.
-        let sin = cross.norm();
-        let ea = if sin > 1e-300 {
-            cross * (report.angle_error / sin)
-        } else if z.dot(&a) < 0.0 {
-            // Antiparallel: any axis ⊥ z works; pick one.
-            let t = if libm::fabs(z[0]) < 0.9 {
-                Vector3::x()
-            } else {
-                Vector3::y()
-            };
-            z.cross(&t).normalize() * core::f64::consts::PI
-        } else {
-            Vector3::zeros()
-        };
-        let proj = nalgebra::Matrix3::identity() - z * z.transpose();
-        let mut jt = SMatrix::<f64, 6, N>::zeros();
-        let jw = proj * jac.fixed_rows::<3>(3);
-        jt.fixed_rows_mut::<3>(0).copy_from(&jac.fixed_rows::<3>(0));
-        jt.fixed_rows_mut::<3>(3).copy_from(&(jw * wa));
-        let mut e = SVector::<f64, 6>::zeros();
-        e.fixed_rows_mut::<3>(0).copy_from(&ep);
-        e.fixed_rows_mut::<3>(3).copy_from(&(proj * ea * wa));
-        let m = jt * jt.transpose() + SMatrix::<f64, 6, 6>::identity() * lam2;
-        let Some(ch) = m.cholesky() else {
-            return Ok(report);
-        };
-        let mut dq: SVector<f64, N> = jt.transpose() * ch.solve(&e);
-        // Null-space pull towards the seed: (I − J⁺J) k (q_seed − q), J⁺ the damped inverse.
-        // The damped projector leaks a little of the pull into the task, so the pull is switched
-        // off for the final approach (within 0.1 mm and 1 mrad).
-        let mut pull = SVector::<f64, N>::zeros();
+        let ea = axis_error(&z, &a, &cross, report.angle_error);
+        let (jt, e) = weighted_task(&jac, &z, &ep, &ea, params.axis_weight);
+        // The pull towards the seed is switched off for the final approach (within 0.1 mm and
+        // 1 mrad): the damped projector leaks a little of it into the task.
         let far = report.position_error > 0.1 || report.angle_error > 1e-3;
-        if far {
-            for i in 0..N {
-                pull[i] = params.seed_gain * (seed[i] - q[i]);
-            }
-        }
-        let jp: SVector<f64, N> = jt.transpose() * ch.solve(&(jt * pull));
-        dq += pull - jp;
-        let big = dq.amax();
-        if big > params.max_step && big > 0.0 {
-            dq *= params.max_step / big;
-        }
-        if !dq.iter().all(|x| x.is_finite()) {
+        let Some(dq) = damped_step(&jt, &e, &q, seed, far, params) else {
             return Ok(report);
-        }
+        };
         for i in 0..N {
             q[i] += dq[i];
         }
         chain.clamp_to_limits(&mut q);
     }
+}
+
+/// Checks the input; returns the unit target axis.
+fn check_input<const N: usize>(
+    position: &[f64; 3],
+    axis: &[f64; 3],
+    seed: &[f64; N],
+    params: &IkParams,
+) -> Result<Vector3<f64>, IkError> {
+    let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
+    if !finite(position) {
+        return Err(IkError::NonFinite { field: "position" });
+    }
+    if !finite(axis) {
+        return Err(IkError::NonFinite { field: "axis" });
+    }
+    if !finite(seed) {
+        return Err(IkError::NonFinite { field: "seed" });
+    }
+    let pr = [
+        params.position_tolerance,
+        params.angle_tolerance,
+        params.damping,
+        params.axis_weight,
+        params.seed_gain,
+        params.max_step,
+    ];
+    if !finite(&pr) {
+        return Err(IkError::NonFinite { field: "params" });
+    }
+    let a = Vector3::from(*axis);
+    let an = a.norm();
+    if !(an > 0.0) {
+        return Err(IkError::ZeroAxis);
+    }
+    Ok(a / an)
+}
+
+/// Axis error: the rotation vector taking the tool axis `z` onto the target axis `a` (exact
+/// angle, not its sine); any axis perpendicular to `z` when they are antiparallel.
+fn axis_error(
+    z: &Vector3<f64>,
+    a: &Vector3<f64>,
+    cross: &Vector3<f64>,
+    angle: f64,
+) -> Vector3<f64> {
+    let sin = cross.norm();
+    if sin > 1e-300 {
+        *cross * (angle / sin)
+    } else if z.dot(a) < 0.0 {
+        // Antiparallel: any axis ⊥ z works; pick one.
+        let t = if libm::fabs(z[0]) < 0.9 {
+            Vector3::x()
+        } else {
+            Vector3::y()
+        };
+        z.cross(&t).normalize() * core::f64::consts::PI
+    } else {
+        Vector3::zeros()
+    }
+}
+
+/// The 6-row task with the roll about `z` projected out (`P = I − z zᵀ`): Jacobian
+/// `[J_v; w_a P J_ω]` and error `[e_p; w_a P e_a]`.
+fn weighted_task<const N: usize>(
+    jac: &SMatrix<f64, 6, N>,
+    z: &Vector3<f64>,
+    ep: &Vector3<f64>,
+    ea: &Vector3<f64>,
+    wa: f64,
+) -> (SMatrix<f64, 6, N>, SVector<f64, 6>) {
+    let proj = nalgebra::Matrix3::identity() - z * z.transpose();
+    let mut jt = SMatrix::<f64, 6, N>::zeros();
+    let jw = proj * jac.fixed_rows::<3>(3);
+    jt.fixed_rows_mut::<3>(0).copy_from(&jac.fixed_rows::<3>(0));
+    jt.fixed_rows_mut::<3>(3).copy_from(&(jw * wa));
+    let mut e = SVector::<f64, 6>::zeros();
+    e.fixed_rows_mut::<3>(0).copy_from(ep);
+    e.fixed_rows_mut::<3>(3).copy_from(&(proj * ea * wa));
+    (jt, e)
+}
+
+/// The damped least-squares step `Jᵀ (J Jᵀ + λ² I)⁻¹ e` plus, when `far`, the null-space pull
+/// towards the seed `(I − J⁺J) k (q_seed − q)` (`J⁺` the damped inverse), scaled so that no
+/// joint moves more than `max_step`. `None` when it cannot be computed.
+fn damped_step<const N: usize>(
+    jt: &SMatrix<f64, 6, N>,
+    e: &SVector<f64, 6>,
+    q: &[f64; N],
+    seed: &[f64; N],
+    far: bool,
+    params: &IkParams,
+) -> Option<SVector<f64, N>> {
+    let lam2 = params.damping * params.damping;
+    let m = jt * jt.transpose() + SMatrix::<f64, 6, 6>::identity() * lam2;
+    let ch = m.cholesky()?;
+    let mut dq: SVector<f64, N> = jt.transpose() * ch.solve(e);
+    let mut pull = SVector::<f64, N>::zeros();
+    if far {
+        for i in 0..N {
+            pull[i] = params.seed_gain * (seed[i] - q[i]);
+        }
+    }
+    let jp: SVector<f64, N> = jt.transpose() * ch.solve(&(jt * pull));
+    dq += pull - jp;
+    let big = dq.amax();
+    if big > params.max_step && big > 0.0 {
+        dq *= params.max_step / big;
+    }
+    dq.iter().all(|x| x.is_finite()).then_some(dq)
 }
 
 #[cfg(test)]

@@ -140,47 +140,8 @@ pub fn random_frame<const M: usize>(
     let m = BASE_ROWS + (m - BASE_ROWS) / 3 * 3;
     let m = m.min(M);
     frame.m = m as u32;
-    // Groups.
-    let mut g = 0;
-    frame.groups[g] = RowGroup::bilateral(0, BASE_ROWS as u32);
-    g += 1;
-    let mut row = BASE_ROWS;
-    if with_contact && row + 3 <= m {
-        frame.groups[g] = RowGroup::contact(row as u32, rng.range(0.1, 0.5));
-        g += 1;
-        row += 3;
-    }
-    while row + 3 <= m {
-        frame.groups[g] = RowGroup::sliding(row as u32, rng.range(0.05, 0.3), rng.range(0.0, 0.05));
-        g += 1;
-        row += 3;
-    }
-    frame.group_count = g as u32;
-    // W = S (A Aᵀ / k + α I) S with row scales S: the base rows are as compliant as the gel
-    // rows — the needle hangs on the base constraint alone (its own stiffness only regularised),
-    // so moving the base is soft, not stiff; rotation rows scaled to rad/(N·mm).
-    let k = m + 8;
-    let scale = |i: usize| match i {
-        0..3 => 1.0,
-        3..BASE_ROWS => 0.01,
-        _ => 1.0,
-    };
-    let wseed = rng.next_u64();
-    for i in 0..m {
-        for j in 0..=i {
-            let mut s = 0.0;
-            for c in 0..k {
-                s += hash_unit(wseed, i, c) * hash_unit(wseed, j, c);
-            }
-            let mut v = s / k as f64;
-            if i == j {
-                v += 0.05;
-            }
-            v *= scale(i) * scale(j);
-            frame.w[i][j] = v;
-            frame.w[j][i] = v;
-        }
-    }
+    random_groups(frame, &mut rng, with_contact);
+    random_compliance(frame, rng.next_u64());
     // Free motion: base rests near B(q).
     let b = chain.tool_pose(q);
     let off = Vector3::new(
@@ -200,7 +161,75 @@ pub fn random_frame<const M: usize>(
     for i in BASE_ROWS..m {
         frame.delta_free[i] = rng.range(-0.5, 0.5);
     }
-    // Observations: tip 100 mm below the base, target a few mm away.
+    random_observations(frame, &b, &mut rng);
+    frame.inserted = 1;
+    frame.insertion_depth = rng.range(0.0, 30.0);
+    frame.q = *q;
+    frame.dt = 0.01;
+    frame.sequence = seed;
+    frame.version = VERSION;
+}
+
+/// Row groups of `random_frame` for `frame.m` rows: the 6 base rows, an optional tip contact,
+/// then sliding points.
+fn random_groups<const M: usize>(
+    frame: &mut ComplianceFrame<M>,
+    rng: &mut Rng,
+    with_contact: bool,
+) {
+    let m = frame.rows();
+    let mut g = 0;
+    frame.groups[g] = RowGroup::bilateral(0, BASE_ROWS as u32);
+    g += 1;
+    let mut row = BASE_ROWS;
+    if with_contact && row + 3 <= m {
+        frame.groups[g] = RowGroup::contact(row as u32, rng.range(0.1, 0.5));
+        g += 1;
+        row += 3;
+    }
+    while row + 3 <= m {
+        frame.groups[g] = RowGroup::sliding(row as u32, rng.range(0.05, 0.3), rng.range(0.0, 0.05));
+        g += 1;
+        row += 3;
+    }
+    frame.group_count = g as u32;
+}
+
+/// Row scale of `random_frame`: rotation base rows in rad/(N·mm), the others 1.
+fn row_scale(i: usize) -> f64 {
+    match i {
+        0..3 => 1.0,
+        3..BASE_ROWS => 0.01,
+        _ => 1.0,
+    }
+}
+
+/// `W = S (A Aᵀ / k + α I) S` of `random_frame` with row scales `S`: the base rows are as
+/// compliant as the gel rows — the needle hangs on the base constraint alone (its own stiffness
+/// only regularised), so moving the base is soft, not stiff; rotation rows scaled to rad/(N·mm).
+fn random_compliance<const M: usize>(frame: &mut ComplianceFrame<M>, wseed: u64) {
+    let m = frame.rows();
+    let k = m + 8;
+    for i in 0..m {
+        for j in 0..=i {
+            let mut s = 0.0;
+            for c in 0..k {
+                s += hash_unit(wseed, i, c) * hash_unit(wseed, j, c);
+            }
+            let mut v = s / k as f64;
+            if i == j {
+                v += 0.05;
+            }
+            v *= row_scale(i) * row_scale(j);
+            frame.w[i][j] = v;
+            frame.w[j][i] = v;
+        }
+    }
+}
+
+/// Observations of `random_frame`: tip 100 mm below the base pose `b`, target a few mm away,
+/// and a random sensitivity `C`.
+fn random_observations<const M: usize>(frame: &mut ComplianceFrame<M>, b: &Pose, rng: &mut Rng) {
     let z = b.z_axis();
     for r in 0..3 {
         let tip = b.translation[r] + 100.0 * z[r];
@@ -212,20 +241,14 @@ pub fn random_frame<const M: usize>(
     }
     let cseed = rng.next_u64();
     for r in 0..NOBS {
-        for c in 0..m {
+        for c in 0..frame.rows() {
             // Tip position moves ~1 mm per mm of base violation; directions ~0.01 rad.
             let base = match r {
                 0..3 => 1.0,
                 3..6 => 0.01,
                 _ => 0.05,
             };
-            frame.c[r][c] = base * 0.01 * hash_unit(cseed, r, c) * scale(c);
+            frame.c[r][c] = base * 0.01 * hash_unit(cseed, r, c) * row_scale(c);
         }
     }
-    frame.inserted = 1;
-    frame.insertion_depth = rng.range(0.0, 30.0);
-    frame.q = *q;
-    frame.dt = 0.01;
-    frame.sequence = seed;
-    frame.version = VERSION;
 }
