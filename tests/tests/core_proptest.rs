@@ -4,7 +4,7 @@
 use needle_core::constraint::{BlockGs, GsParams};
 use needle_core::payload::{GroupKind, RowGroup, ValidationError};
 use needle_core::synthetic::random_frame;
-use needle_core::{Command, ComplianceFrame, Controller, DhChain, InverseParams};
+use needle_core::{Command, ComplianceFrame, Controller, DhChain, InverseParams, StepError};
 use proptest::prelude::*;
 
 const M: usize = 30;
@@ -121,7 +121,11 @@ proptest! {
                 prop_assert!(cmd.lambda[..frame.m as usize].iter().all(|x| x.is_finite()));
             }
             Err(e) => {
-                let explained = frame.validate().is_err() || matches!(e, needle_core::StepError::NonFinite { .. });
+                // A frame that validates can still hold a W that is not positive definite (a
+                // corrupted diagonal: see `tiny_w_diagonal_is_not_positive_definite`), or finite
+                // values so extreme that the step overflows (e.g. `p_free = 1e308`).
+                let explained = frame.validate().is_err()
+                    || matches!(e, StepError::NotPositiveDefinite { .. } | StepError::NonFinite { .. });
                 prop_assert!(explained, "unexplained error: {e:?}");
                 prop_assert_eq!(cmd.q, before, "command untouched on error");
                 let _ = format!("{e}");
@@ -176,6 +180,27 @@ proptest! {
             }
         }
     }
+}
+
+/// Regression (the case kept in `core_proptest.proptest-regressions`): a frame whose W passes
+/// validation (finite, symmetric, positive diagonal) but whose last diagonal entry is 1.9e-308
+/// has a Schur complement of the base block that is not positive definite. The step used to
+/// report it as `InvalidFrame(NonPositiveDiagonal)` of a frame that validates, then as
+/// `NonFinite`; it is its own kind.
+#[test]
+fn tiny_w_diagonal_is_not_positive_definite() {
+    let mut frame = boxed_frame();
+    random_frame(&mut frame, &DhChain::rv1a(), &Q, 12, 0, false);
+    frame.w[11][11] = 1.856838476935538e-308;
+    assert_eq!(frame.validate(), Ok(()));
+    let mut ctrl = Controller::<M>::new_boxed(DhChain::rv1a(), InverseParams::default());
+    let mut cmd = boxed_command();
+    let e = ctrl
+        .step(&frame, &mut cmd)
+        .expect_err("W is not positive definite");
+    assert!(matches!(e, StepError::NotPositiveDefinite { .. }), "{e:?}");
+    assert!(e.to_string().contains("not positive definite"), "{e}");
+    assert_eq!(cmd.q, [0.0; 6], "command untouched on error");
 }
 
 #[test]

@@ -19,6 +19,14 @@ pub enum StepError {
         /// Where.
         stage: &'static str,
     },
+    /// The compliance `W` of a frame that passed validation (finite, symmetric, positive
+    /// diagonal) is not positive definite: its needle-base block `W_bb`, or the Schur complement
+    /// of that block (`W` without the base rows, [`crate::reduce`]), has no Cholesky factor or a
+    /// non-positive diagonal. A compliance never looks like this; a corrupted frame may.
+    NotPositiveDefinite {
+        /// Which matrix.
+        stage: &'static str,
+    },
 }
 
 impl fmt::Display for StepError {
@@ -27,6 +35,9 @@ impl fmt::Display for StepError {
             Self::InvalidFrame(e) => write!(f, "invalid frame: {e}"),
             Self::InvalidParameter { name } => write!(f, "invalid parameter {name}"),
             Self::NonFinite { stage } => write!(f, "non-finite result in {stage}"),
+            Self::NotPositiveDefinite { stage } => {
+                write!(f, "W is not positive definite ({stage})")
+            }
         }
     }
 }

@@ -12,8 +12,13 @@ use super::{Controller, StepError};
 use crate::constraint::{ActiveSet, BlockGs, GsParams, SolveReport};
 use crate::kinematics::Pose;
 use crate::math::rotation_log;
-use crate::payload::{ComplianceFrame, JOINTS};
+use crate::payload::{ComplianceFrame, JOINTS, ValidationError};
 use nalgebra::{Matrix3, Vector3};
+
+/// The needle-base block `W_bb` of `W` (errors).
+const BASE_BLOCK: &str = "needle-base block W_bb";
+/// `W` without the base rows (errors).
+const SCHUR: &str = "W without the base rows, W_oo - W_ob W_bb^-1 W_bo";
 
 /// Sweeps after which a reduced solve that has not converged is polished on its active set.
 const POLISH_AFTER: u32 = 60;
@@ -241,24 +246,31 @@ impl<const M: usize> Controller<M> {
 
     /// Validates the frame and factors the diagonal blocks, of the reduced problem too when the
     /// base rows are eliminated.
+    ///
+    /// # Errors
+    /// [`StepError::InvalidFrame`]; [`StepError::NotPositiveDefinite`] when `W_bb` or its Schur
+    /// complement is not positive definite.
     pub(super) fn prepare_blocks(&mut self, frame: &ComplianceFrame<M>) -> Result<(), StepError> {
         self.gs.prepare_frame(frame)?;
         if !self.params.eliminate_base {
             return Ok(());
         }
         if !self.red.prepare(frame) {
-            return Err(StepError::NonFinite {
-                stage: "base block of W (not positive definite)",
-            });
+            return Err(StepError::NotPositiveDefinite { stage: BASE_BLOCK });
         }
         let n = self.red.rows();
         if n > 0 {
-            // The frame's own W passed validation, so a failure here is the Schur complement
-            // of the base block: W is not positive definite (e.g. a corrupted diagonal).
+            // The frame's own W passed validation (and its groups with it), so a failure here
+            // is the Schur complement of the base block: a non-positive diagonal means W is not
+            // positive definite (e.g. a corrupted diagonal), an overflow is non-finite.
             self.gs
                 .prepare(&self.red.w, n, self.red.groups())
-                .map_err(|_| StepError::NonFinite {
-                    stage: "W without the base rows (not positive definite)",
+                .map_err(|e| match e {
+                    ValidationError::NonPositiveDiagonal { .. } => {
+                        StepError::NotPositiveDefinite { stage: SCHUR }
+                    }
+                    ValidationError::NonFinite { .. } => StepError::NonFinite { stage: SCHUR },
+                    e => StepError::InvalidFrame(e),
                 })?;
         }
         Ok(())
