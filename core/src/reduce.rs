@@ -81,7 +81,7 @@ impl<const M: usize> BaseElimination<M> {
 
     /// Builds `W'`, `S` and the groups for a *validated* frame. Returns `false` (and leaves an
     /// empty reduction) if `W_bb` is not positive definite.
-    pub fn prepare(&mut self, frame: &ComplianceFrame<M>) -> bool {
+    pub fn prepare<const N: usize>(&mut self, frame: &ComplianceFrame<M, N>) -> bool {
         let m = frame.rows().min(M);
         let w = &frame.w;
         self.n = 0;
@@ -133,7 +133,11 @@ impl<const M: usize> BaseElimination<M> {
     }
 
     /// `δ' = δ_o − S δ_b` from the frame's other rows and the base violation `delta_b`.
-    pub fn reduce_delta(&mut self, frame: &ComplianceFrame<M>, delta_b: &[f64; 6]) {
+    pub fn reduce_delta<const N: usize>(
+        &mut self,
+        frame: &ComplianceFrame<M, N>,
+        delta_b: &[f64; 6],
+    ) {
         for i in 0..self.n {
             let mut d = frame.delta_free[BASE_ROWS + i];
             for k in 0..6 {
@@ -145,9 +149,9 @@ impl<const M: usize> BaseElimination<M> {
 
     /// The full `λ` from the reduced `lambda_o` (rows `0..n`): `λ_b = W_bb⁻¹ (δ_b − W_bo λ_o)`,
     /// `λ_o` copied after it.
-    pub fn expand(
+    pub fn expand<const N: usize>(
         &self,
-        frame: &ComplianceFrame<M>,
+        frame: &ComplianceFrame<M, N>,
         delta_b: &[f64; 6],
         lambda_o: &[f64; M],
         full: &mut [f64; M],

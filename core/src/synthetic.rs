@@ -6,9 +6,13 @@
 //!   target (taken from joints `q_target`) is exactly reachable.
 //! * [`random_frame`]: a seeded random SPD compliance with the production layout (6 base rows, an
 //!   optional tip contact, sliding points), random violations and observation rows.
+//! * [`rv1a_on_turntable`]: a 7-joint arm for tests of `N ≠ 6`.
+//!
+//! Both frames work for any joint count `N` of the chain.
 
 use crate::kinematics::{DhChain, Pose};
-use crate::payload::{BASE_ROWS, ComplianceFrame, JOINTS, NOBS, ObsIndex, RowGroup, VERSION};
+use crate::kinematics::{DhJoint, JointLimit};
+use crate::payload::{BASE_ROWS, ComplianceFrame, NOBS, ObsIndex, RowGroup, VERSION};
 use nalgebra::{Matrix3, Vector3};
 
 /// A small counter-based random generator (SplitMix64); deterministic for a seed.
@@ -57,6 +61,28 @@ fn write_rotation(dst: &mut [[f64; 3]; 3], r: &Matrix3<f64>) {
     }
 }
 
+/// A 7-joint arm for tests of redundant robots: the RV-1A ([`DhChain::rv1a`]) mounted on a
+/// turntable, a revolute joint about the world z axis whose link carries the robot 200 mm out
+/// (`q_0` first, then the RV-1A's six joints; turntable ±170°, 90°/s).
+pub fn rv1a_on_turntable() -> DhChain<7> {
+    let arm = DhChain::rv1a();
+    let mut joints = [DhJoint {
+        theta_offset: 0.0,
+        d: 0.0,
+        a: 200.0,
+        alpha: 0.0,
+    }; 7];
+    joints[1..].copy_from_slice(&arm.joints);
+    let mut limits = [JointLimit::from_degrees(-170.0, 170.0, 90.0); 7];
+    limits[1..].copy_from_slice(&arm.limits);
+    DhChain {
+        joints,
+        limits,
+        base: arm.base,
+        tool: arm.tool,
+    }
+}
+
 /// Model tip and tip direction of the rigid-needle frame for a base pose `b`.
 fn rigid_tip(free: &Pose, b: &Pose, length: f64) -> (Vector3<f64>, Vector3<f64>) {
     let z = free.z_axis();
@@ -74,11 +100,11 @@ fn rigid_tip(free: &Pose, b: &Pose, length: f64) -> (Vector3<f64>, Vector3<f64>)
 /// `tip = p_free + u_p + L z + u_r × L z` with `(u_p, u_r) = W λ` — linear in `λ`. The target is
 /// this model's tip at `q_target` and the tangent its direction there; the entry point lies
 /// `L/4` behind the target along that direction. `frame.q = q_free`, `dt` = 1 s, not inserted.
-pub fn rigid_needle_frame<const M: usize>(
-    frame: &mut ComplianceFrame<M>,
-    chain: &DhChain<JOINTS>,
-    q_free: &[f64; JOINTS],
-    q_target: &[f64; JOINTS],
+pub fn rigid_needle_frame<const M: usize, const N: usize>(
+    frame: &mut ComplianceFrame<M, N>,
+    chain: &DhChain<N>,
+    q_free: &[f64; N],
+    q_target: &[f64; N],
     length: f64,
 ) {
     frame.reset();
@@ -126,10 +152,10 @@ pub fn rigid_needle_frame<const M: usize>(
 /// `with_contact`) one tip contact `[n, t1, t2]`, then sliding points. `W = A Aᵀ / k + α I`
 /// with random `A` (`k = m + 8` columns), scaled so that base rows are stiffer than gel rows;
 /// random violations and observation rows; the needle base rests near `B(q)`.
-pub fn random_frame<const M: usize>(
-    frame: &mut ComplianceFrame<M>,
-    chain: &DhChain<JOINTS>,
-    q: &[f64; JOINTS],
+pub fn random_frame<const M: usize, const N: usize>(
+    frame: &mut ComplianceFrame<M, N>,
+    chain: &DhChain<N>,
+    q: &[f64; N],
     m: usize,
     seed: u64,
     with_contact: bool,
@@ -172,8 +198,8 @@ pub fn random_frame<const M: usize>(
 
 /// Row groups of `random_frame` for `frame.m` rows: the 6 base rows, an optional tip contact,
 /// then sliding points.
-fn random_groups<const M: usize>(
-    frame: &mut ComplianceFrame<M>,
+fn random_groups<const M: usize, const N: usize>(
+    frame: &mut ComplianceFrame<M, N>,
     rng: &mut Rng,
     with_contact: bool,
 ) {
@@ -207,7 +233,10 @@ fn row_scale(i: usize) -> f64 {
 /// `W = S (A Aᵀ / k + α I) S` of `random_frame` with row scales `S`: the base rows are as
 /// compliant as the gel rows — the needle hangs on the base constraint alone (its own stiffness
 /// only regularised), so moving the base is soft, not stiff; rotation rows scaled to rad/(N·mm).
-fn random_compliance<const M: usize>(frame: &mut ComplianceFrame<M>, wseed: u64) {
+fn random_compliance<const M: usize, const N: usize>(
+    frame: &mut ComplianceFrame<M, N>,
+    wseed: u64,
+) {
     let m = frame.rows();
     let k = m + 8;
     for i in 0..m {
@@ -229,7 +258,11 @@ fn random_compliance<const M: usize>(frame: &mut ComplianceFrame<M>, wseed: u64)
 
 /// Observations of `random_frame`: tip 100 mm below the base pose `b`, target a few mm away,
 /// and a random sensitivity `C`.
-fn random_observations<const M: usize>(frame: &mut ComplianceFrame<M>, b: &Pose, rng: &mut Rng) {
+fn random_observations<const M: usize, const N: usize>(
+    frame: &mut ComplianceFrame<M, N>,
+    b: &Pose,
+    rng: &mut Rng,
+) {
     let z = b.z_axis();
     for r in 0..3 {
         let tip = b.translation[r] + 100.0 * z[r];

@@ -1,7 +1,7 @@
 //! The whole inverse step allocates nothing: a counting global allocator (thread-local counter,
 //! so other test threads do not interfere) around `Controller::step`, after a warm-up.
 
-use needle_core::synthetic::random_frame;
+use needle_core::synthetic::{random_frame, rv1a_on_turntable};
 use needle_core::{Command, ComplianceFrame, Controller, DhChain, InverseParams};
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
@@ -39,13 +39,11 @@ fn allocations() -> u64 {
 
 const M: usize = 120;
 
-#[test]
-fn inverse_step_allocates_nothing() {
-    let mut frame = ComplianceFrame::<M>::new_boxed();
-    let mut cmd = Command::<M>::new_boxed();
-    let chain = DhChain::rv1a();
-    let q = [0.1, 0.3, 2.0, 0.0, 0.5, 0.0];
-    let mut ctrl = Controller::<M>::new_boxed(chain, InverseParams::default());
+/// Allocations counted over five `Controller::step`s on seeded random frames, after a warm-up.
+fn step_allocations<const N: usize>(chain: DhChain<N>, q: [f64; N]) -> u64 {
+    let mut frame = ComplianceFrame::<M, N>::new_boxed();
+    let mut cmd = Command::<M, N>::new_boxed();
+    let mut ctrl = Controller::<M, N>::new_boxed(chain, InverseParams::default());
     random_frame(&mut frame, &chain, &q, M, 42, false);
     // Warm up (lazy statics, first-touch of anything).
     ctrl.step(&frame, &mut cmd).expect("valid frame");
@@ -55,8 +53,14 @@ fn inverse_step_allocates_nothing() {
         let before = allocations();
         let rep = ctrl.step(&frame, &mut cmd).expect("valid frame");
         total += allocations() - before;
-        assert_eq!(rep.solves, 8);
+        assert_eq!(rep.solves, N as u32 + 2);
     }
+    total
+}
+
+#[test]
+fn inverse_step_allocates_nothing() {
+    let total = step_allocations(DhChain::rv1a(), [0.1, 0.3, 2.0, 0.0, 0.5, 0.0]);
     // Sanity check that the counter counts.
     let before = allocations();
     let v = std::hint::black_box(vec![1u8; 16]);
@@ -67,4 +71,11 @@ fn inverse_step_allocates_nothing() {
         "the counting allocator must see allocations"
     );
     assert_eq!(total, 0, "Controller::step allocated");
+}
+
+/// The same for a 7-joint arm (`Controller<M, 7>`: J is 4×7, the step 7 joints).
+#[test]
+fn seven_joint_step_allocates_nothing() {
+    let total = step_allocations(rv1a_on_turntable(), [0.1, 0.1, 0.3, 2.0, 0.0, 0.5, 0.0]);
+    assert_eq!(total, 0, "Controller<M, 7>::step allocated");
 }

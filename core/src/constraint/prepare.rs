@@ -12,7 +12,10 @@ impl<const M: usize> BlockGs<M> {
     ///
     /// # Errors
     /// The frame's validation error.
-    pub fn prepare_frame(&mut self, frame: &ComplianceFrame<M>) -> Result<(), ValidationError> {
+    pub fn prepare_frame<const N: usize>(
+        &mut self,
+        frame: &ComplianceFrame<M, N>,
+    ) -> Result<(), ValidationError> {
         frame.validate()?;
         self.prepare_unchecked(&frame.w, frame.rows(), frame.used_groups());
         Ok(())

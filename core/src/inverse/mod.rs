@@ -55,7 +55,6 @@ pub use solves::base_violation;
 
 use crate::constraint::{ActiveSet, BlockGs};
 use crate::kinematics::DhChain;
-use crate::payload::JOINTS;
 use crate::reduce::BaseElimination;
 use solves::Target;
 
@@ -67,9 +66,9 @@ use solves::Target;
 /// reduced `W`: build it in place, with [`Self::init_in_place`] in a `static` or with `new_boxed`
 /// (feature `alloc`) on the heap, not on a small stack.
 #[derive(Clone, Debug)]
-pub struct Controller<const M: usize> {
+pub struct Controller<const M: usize, const N: usize = 6> {
     /// The robot (DH chain, limits, base and tool transforms).
-    pub chain: DhChain<JOINTS>,
+    pub chain: DhChain<N>,
     /// Tuning.
     pub params: InverseParams,
     /// Block factors of the problem the step iterates on (the reduced one with `eliminate_base`).
@@ -130,7 +129,7 @@ crate::zeroed::impl_zeroable!(Lambdas<const M> {
     prev,
     prev_rows
 });
-crate::zeroed::impl_zeroable!(Controller<const M> {
+crate::zeroed::impl_zeroable!(Controller<const M, const N> {
     chain,
     params,
     gs,
@@ -144,7 +143,7 @@ crate::zeroed::impl_zeroable!(Controller<const M> {
     lr,
 });
 
-impl<const M: usize> Controller<M> {
+impl<const M: usize, const N: usize> Controller<M, N> {
     const CAPACITY_OK: () = assert!(
         M >= crate::payload::BASE_ROWS,
         "M must hold the 6 base rows"
@@ -152,7 +151,7 @@ impl<const M: usize> Controller<M> {
 
     /// A controller for `chain` with tuning `params`, built by value (≈ `16 M²` bytes on the
     /// stack: prefer [`Self::init_in_place`] or `new_boxed` for large `M`).
-    pub fn new(chain: DhChain<JOINTS>, params: InverseParams) -> Self {
+    pub fn new(chain: DhChain<N>, params: InverseParams) -> Self {
         let () = Self::CAPACITY_OK;
         Self {
             chain,
@@ -173,7 +172,7 @@ impl<const M: usize> Controller<M> {
     /// zero, no warm start, `chain` and `params` set.
     pub fn init_in_place(
         this: &mut core::mem::MaybeUninit<Self>,
-        chain: DhChain<JOINTS>,
+        chain: DhChain<N>,
         params: InverseParams,
     ) -> &mut Self {
         crate::zeroed::zeroed_in_place(this).configure(chain, params)
@@ -190,14 +189,14 @@ impl<const M: usize> Controller<M> {
     /// assert_eq!(ctrl.chain, DhChain::rv1a());
     /// ```
     #[cfg(feature = "alloc")]
-    pub fn new_boxed(chain: DhChain<JOINTS>, params: InverseParams) -> alloc::boxed::Box<Self> {
+    pub fn new_boxed(chain: DhChain<N>, params: InverseParams) -> alloc::boxed::Box<Self> {
         let mut b = crate::zeroed::boxed_zeroed::<Self>();
         b.configure(chain, params);
         b
     }
 
     /// Sets the robot and the tuning of a zeroed controller.
-    fn configure(&mut self, chain: DhChain<JOINTS>, params: InverseParams) -> &mut Self {
+    fn configure(&mut self, chain: DhChain<N>, params: InverseParams) -> &mut Self {
         let () = Self::CAPACITY_OK;
         self.chain = chain;
         self.params = params;

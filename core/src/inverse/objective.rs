@@ -77,8 +77,8 @@ fn rotation_between(from: &Vector3<f64>, to: &Vector3<f64>) -> ([f64; 3], f64) {
 
 /// The objective for constraint forces `lambda` and needle-base pose `b` (from forward
 /// kinematics), see the module docs.
-pub fn evaluate_objective<const M: usize>(
-    frame: &ComplianceFrame<M>,
+pub fn evaluate_objective<const M: usize, const N: usize>(
+    frame: &ComplianceFrame<M, N>,
     lambda: &[f64; M],
     b: &Pose,
     params: &InverseParams,

@@ -12,7 +12,7 @@ use super::{Controller, StepError};
 use crate::constraint::{ActiveSet, BlockGs, GsParams, SolveReport};
 use crate::kinematics::Pose;
 use crate::math::rotation_log;
-use crate::payload::{ComplianceFrame, JOINTS, ValidationError};
+use crate::payload::{ComplianceFrame, ValidationError};
 use nalgebra::{Matrix3, Vector3};
 
 /// The needle-base block `W_bb` of `W` (errors).
@@ -58,14 +58,14 @@ pub fn base_violation(b: &Pose, p_free: &[f64; 3], r_free_rows: &[[f64; 3]; 3]) 
     let dr = rotation_log(&(b.rotation * r_free(r_free_rows).transpose()));
     [dp[0], dp[1], dp[2], dr[0], dr[1], dr[2]]
 }
-impl<const M: usize> Controller<M> {
+impl<const M: usize, const N: usize> Controller<M, N> {
     /// One constraint solve at joints `q` into `target`, started from `start`, to `tolerance`
     /// (relative, as [`GsParams::tolerance`]); the other Gauss-Seidel settings are `params.gs`.
     /// Returns the tool pose at `q` and the report.
     pub(super) fn solve(
         &mut self,
-        frame: &ComplianceFrame<M>,
-        q: &[f64; JOINTS],
+        frame: &ComplianceFrame<M, N>,
+        q: &[f64; N],
         target: Target,
         start: Start,
         tolerance: f64,
@@ -104,7 +104,7 @@ impl<const M: usize> Controller<M> {
     /// (repairing any status change).
     fn solve_base_on_active_set(
         &mut self,
-        frame: &ComplianceFrame<M>,
+        frame: &ComplianceFrame<M, N>,
         gs: &GsParams,
     ) -> SolveReport {
         let loose = GsParams {
@@ -144,7 +144,7 @@ impl<const M: usize> Controller<M> {
     /// rows `6..m`; the full λ (base rows recovered) is written back into the target.
     fn solve_reduced(
         &mut self,
-        frame: &ComplianceFrame<M>,
+        frame: &ComplianceFrame<M, N>,
         d: &[f64; 6],
         target: Target,
         gs: &GsParams,
@@ -188,7 +188,7 @@ impl<const M: usize> Controller<M> {
     /// rows bilateral, slipping axial rows tied to their bound — on the full problem, written
     /// back into the reduced iterate; Gauss-Seidel then confirms it (and repairs any status the
     /// step got wrong).
-    fn polish_reduced(&mut self, frame: &ComplianceFrame<M>, d: &[f64; 6], target: Target) {
+    fn polish_reduced(&mut self, frame: &ComplianceFrame<M, N>, d: &[f64; 6], target: Target) {
         let n = self.red.rows();
         let full = self.lambda.of(target);
         self.red.expand(frame, d, &self.lr, full);
@@ -203,7 +203,7 @@ impl<const M: usize> Controller<M> {
 
     /// The prediction of λ for the base violation `d` into `lambda.work`: `λ_q + Z (d − δ_b(q))`
     /// on the frozen active set when its factor is valid, else `λ_q`.
-    pub(super) fn predict(&mut self, frame: &ComplianceFrame<M>, d: &[f64; 6]) {
+    pub(super) fn predict(&mut self, frame: &ComplianceFrame<M, N>, d: &[f64; 6]) {
         if !self.set_valid {
             let m = frame.rows();
             self.lambda.work[..m].copy_from_slice(&self.lambda.base[..m]);
@@ -224,7 +224,7 @@ impl<const M: usize> Controller<M> {
 
     /// The prediction at joints `q` into `lambda.work` (a linearised Jacobian column); returns
     /// the tool pose.
-    pub(super) fn predict_at(&mut self, frame: &ComplianceFrame<M>, q: &[f64; JOINTS]) -> Pose {
+    pub(super) fn predict_at(&mut self, frame: &ComplianceFrame<M, N>, q: &[f64; N]) -> Pose {
         let b = self.chain.tool_pose(q);
         let d = base_violation(&b, &frame.p_free, &frame.r_free);
         self.predict(frame, &d);
@@ -233,7 +233,7 @@ impl<const M: usize> Controller<M> {
 
     /// Factors the active set of the base solve (`lambda.base`) on the full frame for the
     /// linearised Jacobian; `false` if it is singular or the frame cannot be prepared.
-    pub(super) fn factor_linearized(&mut self, frame: &ComplianceFrame<M>) -> bool {
+    pub(super) fn factor_linearized(&mut self, frame: &ComplianceFrame<M, N>) -> bool {
         if self.gs_full.prepare_frame(frame).is_err() {
             return false;
         }
@@ -250,7 +250,10 @@ impl<const M: usize> Controller<M> {
     /// # Errors
     /// [`StepError::InvalidFrame`]; [`StepError::NotPositiveDefinite`] when `W_bb` or its Schur
     /// complement is not positive definite.
-    pub(super) fn prepare_blocks(&mut self, frame: &ComplianceFrame<M>) -> Result<(), StepError> {
+    pub(super) fn prepare_blocks(
+        &mut self,
+        frame: &ComplianceFrame<M, N>,
+    ) -> Result<(), StepError> {
         self.gs.prepare_frame(frame)?;
         if !self.params.eliminate_base {
             return Ok(());

@@ -3,13 +3,13 @@
 use super::solves::{Start, Target};
 use super::{Controller, Objective, StepError, evaluate_objective};
 use crate::constraint::SolveReport;
-use crate::payload::{Command, ComplianceFrame, JOINTS, SolverReport, StatusFlags, VERSION};
+use crate::payload::{Command, ComplianceFrame, SolverReport, StatusFlags, VERSION};
 use nalgebra::{Matrix4, SMatrix, SVector, Vector4};
 
-/// The Jacobian `∂T/∂q`, 4 × joints [mm/rad].
-type Jacobian = SMatrix<f64, 4, JOINTS>;
+/// The Jacobian `∂T/∂q`, 4 × N [mm/rad].
+type Jacobian<const N: usize> = SMatrix<f64, 4, N>;
 
-impl<const M: usize> Controller<M> {
+impl<const M: usize, const N: usize> Controller<M, N> {
     /// One inverse step for `frame`, written into the caller-owned `cmd`. Allocates nothing.
     ///
     /// The stages (module docs for the equations):
@@ -27,9 +27,9 @@ impl<const M: usize> Controller<M> {
     /// [`StepError`] when the frame or the parameters are invalid; `cmd` is then untouched.
     pub fn step(
         &mut self,
-        frame: &ComplianceFrame<M>,
-        cmd: &mut Command<M>,
-    ) -> Result<SolverReport, StepError> {
+        frame: &ComplianceFrame<M, N>,
+        cmd: &mut Command<M, N>,
+    ) -> Result<SolverReport<N>, StepError> {
         let m = self.prepare(frame)?;
         let mut report = SolverReport::default();
         let (obj0, base_rep) = self.base_solve(frame, &mut report);
@@ -48,7 +48,7 @@ impl<const M: usize> Controller<M> {
     /// Stage 1: validates the parameters and the frame, factors the diagonal blocks (of the
     /// reduced problem when the base rows are eliminated) and warm-starts `λ_q` from the previous
     /// step's answer. Returns `m`.
-    fn prepare(&mut self, frame: &ComplianceFrame<M>) -> Result<usize, StepError> {
+    fn prepare(&mut self, frame: &ComplianceFrame<M, N>) -> Result<usize, StepError> {
         self.params.validate()?;
         self.prepare_blocks(frame)?;
         let m = frame.rows();
@@ -67,8 +67,8 @@ impl<const M: usize> Controller<M> {
     /// Stage 2: `λ_q` at the frame's joints and the objective `T(q)` there.
     fn base_solve(
         &mut self,
-        frame: &ComplianceFrame<M>,
-        report: &mut SolverReport,
+        frame: &ComplianceFrame<M, N>,
+        report: &mut SolverReport<N>,
     ) -> (Objective, SolveReport) {
         let tolerance = self.params.gs.tolerance;
         let (b0, rep) = self.solve(frame, &frame.q, Target::Base, Start::Current, tolerance);
@@ -79,7 +79,7 @@ impl<const M: usize> Controller<M> {
     }
 
     /// Within tolerance: no motion, `λ_q` is the answer.
-    fn hold(&mut self, m: usize, obj0: &Objective, report: &mut SolverReport) {
+    fn hold(&mut self, m: usize, obj0: &Objective, report: &mut SolverReport<N>) {
         report.flags |= StatusFlags::WITHIN_TOLERANCE;
         self.lambda.work[..m].copy_from_slice(&self.lambda.base[..m]);
         report.objective_after = obj0.t;
@@ -91,10 +91,10 @@ impl<const M: usize> Controller<M> {
     /// ([`Objective::angle_derivative`]).
     fn jacobian(
         &mut self,
-        frame: &ComplianceFrame<M>,
+        frame: &ComplianceFrame<M, N>,
         obj0: &Objective,
-        report: &mut SolverReport,
-    ) -> Jacobian {
+        report: &mut SolverReport<N>,
+    ) -> Jacobian<N> {
         let p = self.params;
         let linearize = match p.jacobian {
             super::JacobianMode::Solve => false,
@@ -103,8 +103,8 @@ impl<const M: usize> Controller<M> {
         };
         let linear = linearize && self.factor_linearized(frame);
         let tolerance = p.jacobian_tolerance.max(p.gs.tolerance);
-        let mut jac = Jacobian::zeros();
-        for i in 0..JOINTS {
+        let mut jac = Jacobian::<N>::zeros();
+        for i in 0..N {
             let mut qi = frame.q;
             qi[i] += p.joint_step;
             let bi = if linear {
@@ -129,11 +129,11 @@ impl<const M: usize> Controller<M> {
     /// joints.
     fn newton_step(
         &self,
-        frame: &ComplianceFrame<M>,
-        jac: &Jacobian,
+        frame: &ComplianceFrame<M, N>,
+        jac: &Jacobian<N>,
         obj0: &Objective,
-        report: &mut SolverReport,
-    ) -> [f64; JOINTS] {
+        report: &mut SolverReport<N>,
+    ) -> [f64; N] {
         let t0 = Vector4::from(obj0.t);
         let dq = self.damped_step(&frame.q, jac, &t0, report);
         self.limit_step(frame, jac, &t0, dq, report)
@@ -146,11 +146,11 @@ impl<const M: usize> Controller<M> {
     /// unreachable target).
     fn damped_step(
         &self,
-        q: &[f64; JOINTS],
-        jac: &Jacobian,
+        q: &[f64; N],
+        jac: &Jacobian<N>,
         t0: &Vector4<f64>,
-        report: &mut SolverReport,
-    ) -> SVector<f64, JOINTS> {
+        report: &mut SolverReport<N>,
+    ) -> SVector<f64, N> {
         let p = &self.params;
         let jjt: Matrix4<f64> = jac * jac.transpose();
         let sigma_min = libm::sqrt(smallest_eigenvalue(&jjt).max(0.0));
@@ -161,15 +161,15 @@ impl<const M: usize> Controller<M> {
             report.flags |= StatusFlags::NEAR_SINGULAR;
         }
         let mut jac_free = *jac;
-        let mut dq = SVector::<f64, JOINTS>::zeros();
-        for _ in 0..=JOINTS {
+        let mut dq = SVector::<f64, N>::zeros();
+        for _ in 0..=N {
             let jjt: Matrix4<f64> = jac_free * jac_free.transpose();
             dq = match (jjt + Matrix4::identity() * eps2).cholesky() {
                 Some(ch) => -(jac_free.transpose() * ch.solve(t0)),
                 None => SVector::zeros(),
             };
             let mut locked = false;
-            for i in 0..JOINTS {
+            for i in 0..N {
                 let l = &self.chain.limits[i];
                 let out = (q[i] >= l.upper && dq[i] > 0.0) || (q[i] <= l.lower && dq[i] < 0.0);
                 if out {
@@ -195,12 +195,12 @@ impl<const M: usize> Controller<M> {
     /// best multiple of what is left for the linear model. Returns the commanded joints.
     fn limit_step(
         &self,
-        frame: &ComplianceFrame<M>,
-        jac: &Jacobian,
+        frame: &ComplianceFrame<M, N>,
+        jac: &Jacobian<N>,
         t0: &Vector4<f64>,
-        mut dq: SVector<f64, JOINTS>,
-        report: &mut SolverReport,
-    ) -> [f64; JOINTS] {
+        mut dq: SVector<f64, N>,
+        report: &mut SolverReport<N>,
+    ) -> [f64; N] {
         let (p, q) = (&self.params, &frame.q);
         let (jt, _) = self.chain.jacobian_tool(q);
         let base_motion = (jt.fixed_rows::<3>(0) * dq).norm();
@@ -209,7 +209,7 @@ impl<const M: usize> Controller<M> {
             report.flags |= StatusFlags::STEP_LIMITED;
         }
         let mut scale = 1.0f64;
-        for i in 0..JOINTS {
+        for i in 0..N {
             let lim = self.chain.limits[i].max_speed * frame.dt;
             let a = libm::fabs(dq[i]);
             if a > lim {
@@ -221,19 +221,19 @@ impl<const M: usize> Controller<M> {
             report.flags |= StatusFlags::SATURATED_SPEED;
         }
         let mut q_new = *q;
-        for i in 0..JOINTS {
+        for i in 0..N {
             q_new[i] = q[i] + dq[i];
         }
         if self.chain.clamp_to_limits(&mut q_new) {
             report.flags |= StatusFlags::SATURATED_LIMIT;
         }
         // A frame outside the limits must still respect the speed limit.
-        for i in 0..JOINTS {
+        for i in 0..N {
             let lim = self.chain.limits[i].max_speed * frame.dt;
             q_new[i] = q_new[i].max(q[i] - lim).min(q[i] + lim);
         }
-        let mut applied = SVector::<f64, JOINTS>::zeros();
-        for i in 0..JOINTS {
+        let mut applied = SVector::<f64, N>::zeros();
+        for i in 0..N {
             applied[i] = q_new[i] - q[i];
         }
         // The clamps may have bent the step: keep the best multiple α ∈ [0, 1] of what is
@@ -243,7 +243,7 @@ impl<const M: usize> Controller<M> {
         if jj > 0.0 {
             let alpha = (-t0.dot(&ja) / jj).clamp(0.0, 1.0);
             if alpha < 1.0 {
-                for i in 0..JOINTS {
+                for i in 0..N {
                     q_new[i] = q[i] + alpha * applied[i];
                     applied[i] *= alpha;
                 }
@@ -260,9 +260,9 @@ impl<const M: usize> Controller<M> {
     /// host applies, and the objective there.
     fn final_solve(
         &mut self,
-        frame: &ComplianceFrame<M>,
-        q_new: &[f64; JOINTS],
-        report: &mut SolverReport,
+        frame: &ComplianceFrame<M, N>,
+        q_new: &[f64; N],
+        report: &mut SolverReport<N>,
     ) -> SolveReport {
         let tolerance = self.params.gs.tolerance;
         let (bf, rep) = self.solve(frame, q_new, Target::Work, Start::Predicted, tolerance);
@@ -275,15 +275,15 @@ impl<const M: usize> Controller<M> {
     /// command.
     fn answer(
         &mut self,
-        frame: &ComplianceFrame<M>,
-        q_new: &[f64; JOINTS],
+        frame: &ComplianceFrame<M, N>,
+        q_new: &[f64; N],
         final_rep: &SolveReport,
-        mut report: SolverReport,
-        cmd: &mut Command<M>,
-    ) -> Result<SolverReport, StepError> {
+        mut report: SolverReport<N>,
+        cmd: &mut Command<M, N>,
+    ) -> Result<SolverReport<N>, StepError> {
         report.final_iterations = final_rep.iterations;
         report.final_residual = final_rep.residual;
-        for i in 0..JOINTS {
+        for i in 0..N {
             report.delta_q[i] = q_new[i] - frame.q[i];
         }
         let m = frame.rows();
@@ -306,10 +306,10 @@ impl<const M: usize> Controller<M> {
     /// As [`Self::step`]: an invalid frame or parameters, a non-finite result.
     pub fn solve_open_loop(
         &mut self,
-        frame: &ComplianceFrame<M>,
-        q: &[f64; JOINTS],
-        cmd: &mut Command<M>,
-    ) -> Result<SolverReport, StepError> {
+        frame: &ComplianceFrame<M, N>,
+        q: &[f64; N],
+        cmd: &mut Command<M, N>,
+    ) -> Result<SolverReport<N>, StepError> {
         let m = self.prepare(frame)?;
         let tolerance = self.params.gs.tolerance;
         let (_, rep) = self.solve(frame, q, Target::Base, Start::Current, tolerance);
@@ -334,8 +334,8 @@ impl<const M: usize> Controller<M> {
     /// [`StepError::InvalidFrame`] when the frame fails validation.
     pub fn objective_at(
         &mut self,
-        frame: &ComplianceFrame<M>,
-        q: &[f64; JOINTS],
+        frame: &ComplianceFrame<M, N>,
+        q: &[f64; N],
     ) -> Result<Objective, StepError> {
         self.prepare_blocks(frame)?;
         let m = frame.rows();
@@ -354,10 +354,10 @@ impl<const M: usize> Controller<M> {
     /// Keeps λ (`lambda.work`) for the next warm start and writes the command.
     fn write_command(
         &mut self,
-        frame: &ComplianceFrame<M>,
-        q: &[f64; JOINTS],
-        report: SolverReport,
-        cmd: &mut Command<M>,
+        frame: &ComplianceFrame<M, N>,
+        q: &[f64; N],
+        report: SolverReport<N>,
+        cmd: &mut Command<M, N>,
     ) {
         let m = frame.rows();
         let l = &mut self.lambda;
@@ -374,7 +374,7 @@ impl<const M: usize> Controller<M> {
 }
 
 /// Adds one constraint solve to the step's report.
-fn count_solve(report: &mut SolverReport, r: &SolveReport) {
+fn count_solve<const N: usize>(report: &mut SolverReport<N>, r: &SolveReport) {
     report.iterations = report.iterations.saturating_add(r.iterations);
     report.solves += 1;
     if !r.converged {

@@ -1,6 +1,6 @@
 //! The core's answer to one frame (core → host) and the report of the step.
 
-use super::{JOINTS, VERSION};
+use super::VERSION;
 use crate::zeroed::{zero_out, zeroed_in_place};
 use core::mem::MaybeUninit;
 
@@ -28,9 +28,9 @@ impl StatusFlags {
 }
 
 /// Report of one inverse step, carried in [`Command::report`].
-#[derive(Clone, Copy, Debug, PartialEq, Default)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 #[repr(C)]
-pub struct SolverReport {
+pub struct SolverReport<const N: usize = 6> {
     /// Gauss-Seidel sweeps summed over every solve of the step.
     pub iterations: u32,
     /// Number of constraint solves in the step (1, or 8 with a Jacobian).
@@ -46,13 +46,29 @@ pub struct SolverReport {
     /// Objective at the commanded joints, from the final solve [mm].
     pub objective_after: [f64; 4],
     /// Applied joint step `Δq` [rad].
-    pub delta_q: [f64; JOINTS],
+    pub delta_q: [f64; N],
 }
 
-/// The core's answer to one frame (core → host).
+impl<const N: usize> Default for SolverReport<N> {
+    fn default() -> Self {
+        Self {
+            iterations: 0,
+            solves: 0,
+            flags: 0,
+            final_iterations: 0,
+            final_residual: 0.0,
+            objective: [0.0; 4],
+            objective_after: [0.0; 4],
+            delta_q: [0.0; N],
+        }
+    }
+}
+
+/// The core's answer to one frame (core → host); `N` joints (default 6, the v1 layout of
+/// `needle.Command.v1`).
 #[derive(Clone, Copy, Debug)]
 #[repr(C)]
-pub struct Command<const M: usize> {
+pub struct Command<const M: usize, const N: usize = 6> {
     /// Layout version, [`VERSION`].
     pub version: u32,
     /// Number of rows of `lambda` used (the frame's `m`).
@@ -60,15 +76,15 @@ pub struct Command<const M: usize> {
     /// Sequence number of the frame this answers.
     pub frame_sequence: u64,
     /// Commanded joints [rad].
-    pub q: [f64; JOINTS],
+    pub q: [f64; N],
     /// Constraint forces at the commanded joints [N or N·mm], first `m` used; apply as
     /// `x = x_free + K⁻¹ Hᵀ λ`.
     pub lambda: [f64; M],
     /// How the step went.
-    pub report: SolverReport,
+    pub report: SolverReport<N>,
 }
 
-crate::zeroed::impl_zeroable!(SolverReport {
+crate::zeroed::impl_zeroable!(SolverReport<const N> {
     iterations,
     solves,
     flags,
@@ -78,7 +94,7 @@ crate::zeroed::impl_zeroable!(SolverReport {
     objective_after,
     delta_q,
 });
-crate::zeroed::impl_zeroable!(Command<const M> {
+crate::zeroed::impl_zeroable!(Command<const M, const N> {
     version,
     m,
     frame_sequence,
@@ -87,7 +103,7 @@ crate::zeroed::impl_zeroable!(Command<const M> {
     report,
 });
 
-impl<const M: usize> Command<M> {
+impl<const M: usize, const N: usize> Command<M, N> {
     /// Initialises a command in place: all zero, `version = VERSION`.
     pub fn init_in_place(this: &mut MaybeUninit<Self>) -> &mut Self {
         zeroed_in_place(this).stamp()

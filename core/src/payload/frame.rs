@@ -1,17 +1,20 @@
 //! The compliance frame: everything the core needs for one inverse step (host → core).
 
-use super::{JOINTS, NOBS, RowGroup, VERSION};
+use super::{NOBS, RowGroup, VERSION};
 use crate::zeroed::{zero_out, zeroed_in_place};
 use core::mem::MaybeUninit;
 
 /// One compliance frame: everything the core needs for one inverse step (host → core).
+///
+/// `N` is the robot's joint count (default 6, the RV-1A); with `N = 6` the layout is the v1
+/// layout of `needle.ComplianceFrame.v1` (the transports carry only that one).
 ///
 /// `M` is the row capacity; only the first `m` rows/columns of the arrays are used. At `M = 192`
 /// a frame is about 320 KiB: never build one on the stack, use [`Self::init_in_place`] on storage
 /// you own (a `static`, a shared-memory sample) or `new_boxed` (feature `alloc`).
 #[derive(Clone, Copy, Debug)]
 #[repr(C)]
-pub struct ComplianceFrame<const M: usize> {
+pub struct ComplianceFrame<const M: usize, const N: usize = 6> {
     /// Layout version, [`VERSION`].
     pub version: u32,
     /// Number of rows used, `6 ≤ m ≤ M`.
@@ -40,12 +43,12 @@ pub struct ComplianceFrame<const M: usize> {
     /// Insertion depth of the tip past the entry point [mm] (0 before puncture).
     pub insertion_depth: f64,
     /// Robot joints at which the frame was built [rad].
-    pub q: [f64; JOINTS],
+    pub q: [f64; N],
     /// Robot control period [s].
     pub dt: f64,
 }
 
-crate::zeroed::impl_zeroable!(ComplianceFrame<const M> {
+crate::zeroed::impl_zeroable!(ComplianceFrame<const M, const N> {
     version,
     m,
     sequence,
@@ -63,7 +66,7 @@ crate::zeroed::impl_zeroable!(ComplianceFrame<const M> {
     dt,
 });
 
-impl<const M: usize> ComplianceFrame<M> {
+impl<const M: usize, const N: usize> ComplianceFrame<M, N> {
     /// Initialises a frame in place: all zero, `version = VERSION`. Returns the initialised frame.
     ///
     /// Use it on storage you own so that the (large) frame never transits the stack (a

@@ -33,7 +33,11 @@ pub const FRAME_TYPE_NAME: &str = "needle.ComplianceFrame.v1";
 /// Service-name style identifier of the command layout (for transports).
 pub const COMMAND_TYPE_NAME: &str = "needle.Command.v1";
 
-/// Number of robot joints carried by the payloads.
+/// Number of joints of the RV-1A, the default `N` of the payloads and of the controller.
+///
+/// Kept for code written before the joint count became a const generic: new code names the
+/// count through the types (`ComplianceFrame<M, N>`, `Command<M, N>`, `Controller<M, N>`,
+/// `DhChain<N>`), whose `N` defaults to 6.
 pub const JOINTS: usize = 6;
 
 /// Number of needle-base rows χ at the start of every frame.

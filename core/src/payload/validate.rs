@@ -214,7 +214,7 @@ pub fn validate_compliance<const M: usize>(
     Ok(())
 }
 
-impl<const M: usize> ComplianceFrame<M> {
+impl<const M: usize, const N: usize> ComplianceFrame<M, N> {
     /// Checks the frame on receipt.
     ///
     /// Checks: version, `6 ≤ m ≤ M`, group table (kinds, lengths, contiguous cover of `0..m`, base
@@ -264,7 +264,7 @@ impl<const M: usize> ComplianceFrame<M> {
     }
 }
 
-impl<const M: usize> Command<M> {
+impl<const M: usize, const N: usize> Command<M, N> {
     /// Checks a received command: version, `m ≤ M`, finite joints, forces and report.
     ///
     /// # Errors
