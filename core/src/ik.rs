@@ -91,6 +91,21 @@ impl core::error::Error for IkError {}
 /// # Errors
 /// [`IkError`] for non-finite input or a zero axis; failing to converge is reported in
 /// [`IkReport::converged`].
+///
+/// # Example
+/// ```
+/// use needle_core::{DhChain, IkParams, solve_ik};
+///
+/// let chain = DhChain::rv1a();
+/// let goal = chain.tool_pose(&[0.2, 0.4, 2.0, 0.3, 0.6, -0.5]); // a reachable needle-base pose
+/// let seed = chain.mid_range();
+/// let ik = solve_ik(&chain, goal.translation.into(), goal.z_axis().into(), &seed, &IkParams::default())?;
+/// assert!(ik.converged && chain.within_limits(&ik.q));
+/// let reached = chain.tool_pose(&ik.q);
+/// assert!((reached.translation - goal.translation).norm() < 1e-5); // mm
+/// assert!(reached.z_axis().dot(&goal.z_axis()) > 1.0 - 1e-12); // same axis, any roll
+/// # Ok::<(), needle_core::IkError>(())
+/// ```
 pub fn solve_ik<const N: usize>(
     chain: &DhChain<N>,
     position: [f64; 3],

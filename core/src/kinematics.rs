@@ -210,6 +210,17 @@ impl<const N: usize> DhChain<N> {
     }
 
     /// Flange pose `E(q)` in the world frame.
+    ///
+    /// # Example
+    /// ```
+    /// use needle_core::DhChain;
+    ///
+    /// let rv1a = DhChain::rv1a();
+    /// let home = rv1a.flange_pose(&[0.0; 6]);
+    /// assert!((home.translation - nalgebra::Vector3::new(-90.0, 0.0, 782.0)).norm() < 1e-9);
+    /// // The needle base is the flange until a tool transform is set.
+    /// assert_eq!(rv1a.tool_pose(&[0.0; 6]), home);
+    /// ```
     pub fn flange_pose(&self, q: &[f64; N]) -> Pose {
         let mut t = self.base;
         for i in 0..N {
@@ -249,6 +260,24 @@ impl<const N: usize> DhChain<N> {
 
     /// Geometric Jacobian (6×N, world frame) of the tool point (needle base `B`): rows vx, vy, vz
     /// [mm/rad], wx, wy, wz [rad/rad]. Also returns the tool pose.
+    ///
+    /// # Example
+    /// ```
+    /// use needle_core::DhChain;
+    ///
+    /// let chain = DhChain::rv1a();
+    /// let q = [0.1, 0.3, 2.0, 0.0, 0.5, 0.0];
+    /// let (jac, _) = chain.jacobian_tool(&q);
+    /// // Column 1 is the needle-base velocity per unit rate of joint 2: a central difference.
+    /// let h = 1e-5;
+    /// let (mut qp, mut qm) = (q, q);
+    /// qp[1] += h;
+    /// qm[1] -= h;
+    /// let v = (chain.tool_pose(&qp).translation - chain.tool_pose(&qm).translation) / (2.0 * h);
+    /// for r in 0..3 {
+    ///     assert!((v[r] - jac[(r, 1)]).abs() < 1e-4); // mm/rad
+    /// }
+    /// ```
     pub fn jacobian_tool(&self, q: &[f64; N]) -> (SMatrix<f64, 6, N>, Pose) {
         let mut frames = [Pose::identity(); N];
         let b = self.link_frames(q, &mut frames).compose(&self.tool);

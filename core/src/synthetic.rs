@@ -100,6 +100,24 @@ fn rigid_tip(free: &Pose, b: &Pose, length: f64) -> (Vector3<f64>, Vector3<f64>)
 /// `tip = p_free + u_p + L z + u_r × L z` with `(u_p, u_r) = W λ` — linear in `λ`. The target is
 /// this model's tip at `q_target` and the tangent its direction there; the entry point lies
 /// `L/4` behind the target along that direction. `frame.q = q_free`, `dt` = 1 s, not inserted.
+///
+/// # Example
+/// ```
+/// use needle_core::synthetic::rigid_needle_frame;
+/// use needle_core::{ComplianceFrame, Controller, DhChain, InverseParams};
+///
+/// let chain = DhChain::rv1a();
+/// let (q_free, q_target) = ([0.25, 0.3, 2.05, 0.05, 0.55, -0.25], [0.2, 0.35, 2.0, 0.1, 0.6, -0.2]);
+/// let mut frame = ComplianceFrame::<12>::new_boxed();
+/// rigid_needle_frame(&mut frame, &chain, &q_free, &q_target, 120.0);
+/// assert_eq!(frame.validate(), Ok(()));
+/// // The target is exactly reachable: the objective vanishes at q_target, not at q_free.
+/// let mut ctrl = Controller::<12>::new_boxed(chain, InverseParams::default());
+/// let norm = |t: [f64; 4]| t.iter().map(|x| x * x).sum::<f64>().sqrt();
+/// assert!(norm(ctrl.objective_at(&frame, &q_target)?.t) < 1e-6);
+/// assert!(norm(ctrl.objective_at(&frame, &q_free)?.t) > 1.0);
+/// # Ok::<(), needle_core::StepError>(())
+/// ```
 pub fn rigid_needle_frame<const M: usize, const N: usize>(
     frame: &mut ComplianceFrame<M, N>,
     chain: &DhChain<N>,

@@ -11,6 +11,27 @@ impl<const M: usize> BlockGs<M> {
     /// Solves `w = W λ − δ` under the group laws, warm-starting from `lambda`, which receives the
     /// result. `w` must be the matrix given to the last `prepare`; rows `m..` are left untouched.
     /// Never loops unbounded; finite input gives finite output.
+    ///
+    /// # Example
+    /// ```
+    /// use needle_core::{BlockGs, GsParams, RowGroup};
+    ///
+    /// // Two frictionless contacts with W = [[2, 1], [1, 2]]: δ = (1, −1) presses the first
+    /// // and lifts the second, so only the first pushes: λ = (0.5, 0).
+    /// let mut w = [[0.0; 4]; 4];
+    /// w[0][..2].copy_from_slice(&[2.0, 1.0]);
+    /// w[1][..2].copy_from_slice(&[1.0, 2.0]);
+    /// let delta = [1.0, -1.0, 0.0, 0.0];
+    /// let mut gs = BlockGs::<4>::new();
+    /// gs.prepare(&w, 2, &[RowGroup::unilateral(0), RowGroup::unilateral(1)])?;
+    /// let mut lambda = [0.0; 4];
+    /// let report = gs.solve(&w, &delta, &mut lambda, &GsParams::default());
+    /// assert!(report.converged);
+    /// assert_eq!(&lambda[..2], &[0.5, 0.0]);
+    /// // w = W λ − δ: zero where λ pushes, non-negative (opening) where it does not.
+    /// assert_eq!(gs.last_residual(), &[0.0, 1.5]);
+    /// # Ok::<(), needle_core::ValidationError>(())
+    /// ```
     pub fn solve(
         &mut self,
         w: &[[f64; M]; M],

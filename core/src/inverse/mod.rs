@@ -170,6 +170,19 @@ impl<const M: usize, const N: usize> Controller<M, N> {
 
     /// Initialises a controller in place (no stack temporary) and returns it: all scratch
     /// zero, no warm start, `chain` and `params` set.
+    ///
+    /// # Example
+    /// ```
+    /// use core::mem::MaybeUninit;
+    /// use needle_core::{Controller, DhChain, InverseParams};
+    ///
+    /// // On a controller without heap: a static (≈ 280 KiB at M = 120).
+    /// static mut CONTROLLER: MaybeUninit<Controller<120>> = MaybeUninit::uninit();
+    /// // SAFETY (of this example): the only borrow of the static.
+    /// let slot = unsafe { &mut *(&raw mut CONTROLLER) };
+    /// let ctrl = Controller::init_in_place(slot, DhChain::rv1a(), InverseParams::default());
+    /// assert_eq!(ctrl.params, InverseParams::default());
+    /// ```
     pub fn init_in_place(
         this: &mut core::mem::MaybeUninit<Self>,
         chain: DhChain<N>,

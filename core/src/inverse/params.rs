@@ -133,6 +133,15 @@ impl InverseParams {
     ///
     /// # Errors
     /// [`StepError::InvalidParameter`] naming the first bad value.
+    ///
+    /// # Example
+    /// ```
+    /// use needle_core::{InverseParams, StepError};
+    ///
+    /// assert_eq!(InverseParams::default().validate(), Ok(()));
+    /// let p = InverseParams { joint_step: 0.0, ..InverseParams::default() };
+    /// assert_eq!(p.validate(), Err(StepError::InvalidParameter { name: "joint_step" }));
+    /// ```
     pub fn validate(&self) -> Result<(), StepError> {
         let pos = |x: f64| x.is_finite() && x > 0.0;
         let nonneg = |x: f64| x.is_finite() && x >= 0.0;

@@ -24,7 +24,32 @@ impl<const M: usize, const N: usize> Controller<M, N> {
     /// 6. answer: check and write the command (`answer`).
     ///
     /// # Errors
-    /// [`StepError`] when the frame or the parameters are invalid; `cmd` is then untouched.
+    /// [`StepError`] when the frame or the parameters are invalid, `W` is not positive
+    /// definite, or a result is not finite; `cmd` is then untouched.
+    ///
+    /// # Example
+    /// ```
+    /// use needle_core::synthetic::random_frame;
+    /// use needle_core::{Command, ComplianceFrame, Controller, DhChain, InverseParams};
+    ///
+    /// let chain = DhChain::rv1a();
+    /// let q = [0.1, 0.3, 2.0, 0.0, 0.5, 0.0];
+    /// // 30 rows: the 6 base rows, a tip contact and sliding points, W random SPD.
+    /// let mut frame = ComplianceFrame::<48>::new_boxed();
+    /// random_frame(&mut frame, &chain, &q, 30, 1, true);
+    /// let mut cmd = Command::<48>::new_boxed();
+    /// let mut ctrl = Controller::<48>::new_boxed(chain, InverseParams::default());
+    ///
+    /// let report = ctrl.step(&frame, &mut cmd)?;
+    /// assert_eq!(report.solves, 8); // base solve, 6 Jacobian columns, final solve
+    /// assert_eq!(cmd.frame_sequence, frame.sequence);
+    /// assert!(cmd.lambda[..30].iter().all(|l| l.is_finite()));
+    /// // The commanded motion respects every joint's speed limit.
+    /// for (dq, limit) in report.delta_q.iter().zip(&chain.limits) {
+    ///     assert!(dq.abs() <= limit.max_speed * frame.dt * (1.0 + 1e-12));
+    /// }
+    /// # Ok::<(), needle_core::StepError>(())
+    /// ```
     pub fn step(
         &mut self,
         frame: &ComplianceFrame<M, N>,
@@ -304,6 +329,22 @@ impl<const M: usize, const N: usize> Controller<M, N> {
     ///
     /// # Errors
     /// As [`Self::step`]: an invalid frame or parameters, a non-finite result.
+    ///
+    /// # Example
+    /// ```
+    /// use needle_core::synthetic::random_frame;
+    /// use needle_core::{Command, ComplianceFrame, Controller, DhChain, InverseParams};
+    ///
+    /// let chain = DhChain::rv1a();
+    /// let q = [0.1, 0.3, 2.0, 0.0, 0.5, 0.0];
+    /// let mut frame = ComplianceFrame::<32>::new_boxed();
+    /// random_frame(&mut frame, &chain, &q, 24, 3, false);
+    /// let mut cmd = Command::<32>::new_boxed();
+    /// let mut ctrl = Controller::<32>::new_boxed(chain, InverseParams::default());
+    /// let report = ctrl.solve_open_loop(&frame, &q, &mut cmd)?;
+    /// assert_eq!((report.solves, cmd.q), (1, q)); // one solve, the joints as given
+    /// # Ok::<(), needle_core::StepError>(())
+    /// ```
     pub fn solve_open_loop(
         &mut self,
         frame: &ComplianceFrame<M, N>,

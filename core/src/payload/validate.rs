@@ -223,6 +223,21 @@ impl<const M: usize, const N: usize> ComplianceFrame<M, N> {
     ///
     /// # Errors
     /// The first problem found, as a [`ValidationError`].
+    ///
+    /// # Example
+    /// ```
+    /// use needle_core::synthetic::random_frame;
+    /// use needle_core::{ComplianceFrame, DhChain, ValidationError};
+    ///
+    /// let mut frame = ComplianceFrame::<32>::new_boxed();
+    /// let q = [0.1, 0.3, 2.0, 0.0, 0.5, 0.0];
+    /// random_frame(&mut frame, &DhChain::rv1a(), &q, 24, 7, false);
+    /// assert_eq!(frame.validate(), Ok(()));
+    ///
+    /// frame.w[7][7] = f64::NAN; // corrupted on the way
+    /// let index = 7 * 32 + 7;
+    /// assert_eq!(frame.validate(), Err(ValidationError::NonFinite { field: "w", index }));
+    /// ```
     pub fn validate(&self) -> Result<(), ValidationError> {
         check_version(self.version)?;
         let m = self.m as usize;
