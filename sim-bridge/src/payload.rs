@@ -19,7 +19,7 @@ use needle_core::Zeroable;
 use needle_core::inverse::InverseParams;
 use needle_core::kinematics::DhChain;
 use needle_core::payload::{
-    COMMAND_TYPE_NAME, Command, ComplianceFrame, FRAME_TYPE_NAME, JOINTS, VERSION,
+    COMMAND_TYPE_NAME, Command, ComplianceFrame, FRAME_TYPE_NAME, JOINTS, Payload,
 };
 
 /// A compliance frame as an iceoryx2 payload (host → core), layout identical to
@@ -55,22 +55,17 @@ unsafe impl<const M: usize> Zeroable for FramePayload<M> {}
 // SAFETY: `#[repr(transparent)]` over `Command<M>`, which is `Zeroable`.
 unsafe impl<const M: usize> Zeroable for CommandPayload<M> {}
 
-/// A payload of the bridge, initialised in a loaned sample as the core's `init_in_place` does:
-/// all zero, then stamped with the layout version ([`crate::shm::loan_initialised`]).
-pub trait Payload: ZeroCopySend + Zeroable + core::fmt::Debug {
-    /// Writes the layout version into a zeroed payload.
-    fn stamp(&mut self);
-}
-
+// The core's initial state (all zero, layout version written), so that a loaned sample is
+// initialised in place as the core's `init_in_place` does ([`crate::shm::loan_initialised`]).
 impl<const M: usize> Payload for FramePayload<M> {
     fn stamp(&mut self) {
-        self.0.version = VERSION;
+        self.0.stamp();
     }
 }
 
 impl<const M: usize> Payload for CommandPayload<M> {
     fn stamp(&mut self) {
-        self.0.version = VERSION;
+        self.0.stamp();
     }
 }
 

@@ -19,7 +19,7 @@
 //! open removes it and creates it again (`open_recovering`).
 
 use crate::payload::{
-    CommandHeader, CommandKind, CommandPayload, FrameHeader, FramePayload, Payload, copy_used,
+    CommandHeader, CommandKind, CommandPayload, FrameHeader, FramePayload, copy_used,
 };
 use crate::transport::{ExchangeReport, Transport, TransportError};
 use core::time::Duration;
@@ -31,6 +31,7 @@ use iceoryx2::service::builder::publish_subscribe::{
     PublishSubscribeCreateError, PublishSubscribeOpenError, PublishSubscribeOpenOrCreateError,
 };
 use iceoryx2::service::port_factory::publish_subscribe::PortFactory;
+use needle_core::payload::Payload;
 use needle_core::payload::{COMMAND_TYPE_NAME, Command, ComplianceFrame, FRAME_TYPE_NAME};
 use needle_core::zeroed_in_place;
 use std::time::Instant;
@@ -110,7 +111,10 @@ pub type CommandSubscriber<const M: usize> = Subscriber<Ipc, CommandPayload<M>, 
 ///
 /// # Errors
 /// [`TransportError::Ipc`] (with `what`) when the loan fails.
-pub fn loan_initialised<P: Payload, H: ZeroCopySend + core::fmt::Debug + Default>(
+pub fn loan_initialised<
+    P: Payload + ZeroCopySend + core::fmt::Debug,
+    H: ZeroCopySend + core::fmt::Debug + Default,
+>(
     publisher: &Publisher<Ipc, P, H>,
     header: H,
     what: &'static str,

@@ -1,7 +1,6 @@
 //! The core's answer to one frame (core → host) and the report of the step.
 
-use super::VERSION;
-use crate::zeroed::{zero_out, zeroed_in_place};
+use super::{Payload, VERSION};
 use core::mem::MaybeUninit;
 
 /// Status flags of a [`SolverReport`] (bit set in `flags`).
@@ -103,10 +102,16 @@ crate::zeroed::impl_zeroable!(Command<const M, const N> {
     report,
 });
 
+impl<const M: usize, const N: usize> Payload for Command<M, N> {
+    fn stamp(&mut self) {
+        self.version = VERSION;
+    }
+}
+
 impl<const M: usize, const N: usize> Command<M, N> {
     /// Initialises a command in place: all zero, `version = VERSION`.
     pub fn init_in_place(this: &mut MaybeUninit<Self>) -> &mut Self {
-        zeroed_in_place(this).stamp()
+        super::init_in_place(this)
     }
 
     /// A command on the heap in the state of [`Self::init_in_place`], built there.
@@ -121,19 +126,11 @@ impl<const M: usize, const N: usize> Command<M, N> {
     /// ```
     #[cfg(feature = "alloc")]
     pub fn new_boxed() -> alloc::boxed::Box<Self> {
-        let mut b = crate::zeroed::boxed_zeroed::<Self>();
-        b.stamp();
-        b
+        super::new_boxed()
     }
 
     /// Resets an existing command to the state of [`Self::init_in_place`].
     pub fn reset(&mut self) {
-        zero_out(self).stamp();
-    }
-
-    /// Writes the layout version into a zeroed command.
-    fn stamp(&mut self) -> &mut Self {
-        self.version = VERSION;
-        self
+        super::reset(self);
     }
 }

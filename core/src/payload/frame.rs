@@ -1,7 +1,6 @@
 //! The compliance frame: everything the core needs for one inverse step (host → core).
 
-use super::{NOBS, RowGroup, VERSION};
-use crate::zeroed::{zero_out, zeroed_in_place};
+use super::{NOBS, Payload, RowGroup, VERSION};
 use core::mem::MaybeUninit;
 
 /// One compliance frame: everything the core needs for one inverse step (host → core).
@@ -36,7 +35,8 @@ pub struct ComplianceFrame<const M: usize, const N: usize = 6> {
     pub p_free: [f64; 3],
     /// Needle base node orientation after free motion, row-major rotation matrix, world frame.
     pub r_free: [[f64; 3]; 3],
-    /// Observations after free motion, laid out by [`ObsIndex`](super::ObsIndex) (world frame, mm or unit vectors).
+    /// Observations after free motion, laid out by [`ObsIndex`](super::ObsIndex) (world frame,
+    /// mm or unit vectors).
     pub o_free: [f64; NOBS],
     /// Observation sensitivity `C = O K⁻¹ Hᵀ`: `o = o_free + C λ`, row-major, `m` columns used.
     pub c: [[f64; M]; NOBS],
@@ -66,6 +66,12 @@ crate::zeroed::impl_zeroable!(ComplianceFrame<const M, const N> {
     dt,
 });
 
+impl<const M: usize, const N: usize> Payload for ComplianceFrame<M, N> {
+    fn stamp(&mut self) {
+        self.version = VERSION;
+    }
+}
+
 impl<const M: usize, const N: usize> ComplianceFrame<M, N> {
     /// Initialises a frame in place: all zero, `version = VERSION`. Returns the initialised frame.
     ///
@@ -83,7 +89,7 @@ impl<const M: usize, const N: usize> ComplianceFrame<M, N> {
     /// assert_eq!((frame.version, frame.m), (VERSION, 0));
     /// ```
     pub fn init_in_place(this: &mut MaybeUninit<Self>) -> &mut Self {
-        zeroed_in_place(this).stamp()
+        super::init_in_place(this)
     }
 
     /// A frame on the heap in the state of [`Self::init_in_place`], built there (no stack copy).
@@ -99,20 +105,12 @@ impl<const M: usize, const N: usize> ComplianceFrame<M, N> {
     /// ```
     #[cfg(feature = "alloc")]
     pub fn new_boxed() -> alloc::boxed::Box<Self> {
-        let mut b = crate::zeroed::boxed_zeroed::<Self>();
-        b.stamp();
-        b
+        super::new_boxed()
     }
 
     /// Resets an existing frame to the state of [`Self::init_in_place`], without a stack copy.
     pub fn reset(&mut self) {
-        zero_out(self).stamp();
-    }
-
-    /// Writes the layout version into a zeroed frame.
-    fn stamp(&mut self) -> &mut Self {
-        self.version = VERSION;
-        self
+        super::reset(self);
     }
 
     /// Number of rows used, as `usize`.
@@ -125,8 +123,8 @@ impl<const M: usize, const N: usize> ComplianceFrame<M, N> {
         &self.groups[..(self.group_count as usize).min(M)]
     }
 
-    /// The observed 3-vector starting at `index` (one of the [`ObsIndex`](super::ObsIndex) constants) for `λ`:
-    /// `o_free + C λ` over the first `m` rows.
+    /// The observed 3-vector starting at `index` (one of the [`ObsIndex`](super::ObsIndex)
+    /// constants) for `λ`: `o_free + C λ` over the first `m` rows.
     pub fn observe(&self, index: usize, lambda: &[f64]) -> [f64; 3] {
         let m = self.rows().min(M).min(lambda.len());
         let mut out = [0.0; 3];

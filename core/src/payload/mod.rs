@@ -20,9 +20,40 @@ mod command;
 mod frame;
 mod validate;
 
+use crate::zeroed::{Zeroable, zero_out, zeroed_in_place};
+use core::mem::MaybeUninit;
+
 pub use command::{Command, SolverReport, StatusFlags};
 pub use frame::ComplianceFrame;
 pub use validate::{LayoutFault, ValidationError, validate_compliance, validate_groups};
+
+/// A versioned payload ([`ComplianceFrame`], [`Command`], and the transports' wrappers of
+/// them): its initial state is all zero with the layout version written, which is what
+/// `init_in_place`, `reset` and `new_boxed` give.
+pub trait Payload: Zeroable {
+    /// Writes the layout version into a zeroed payload.
+    fn stamp(&mut self);
+}
+
+/// [`Payload`]'s initial state in `slot`, without a stack temporary.
+fn init_in_place<T: Payload>(slot: &mut MaybeUninit<T>) -> &mut T {
+    let value = zeroed_in_place(slot);
+    value.stamp();
+    value
+}
+
+/// [`Payload`]'s initial state on the heap, built there.
+#[cfg(feature = "alloc")]
+fn new_boxed<T: Payload>() -> alloc::boxed::Box<T> {
+    let mut value = crate::zeroed::boxed_zeroed::<T>();
+    value.stamp();
+    value
+}
+
+/// Puts a live payload back into its initial state, in place.
+fn reset<T: Payload>(value: &mut T) {
+    zero_out(value).stamp();
+}
 
 /// Layout version of [`ComplianceFrame`] and [`Command`]; bump it when a field changes.
 pub const VERSION: u32 = 1;
