@@ -22,19 +22,23 @@ use faer::{Conj, MatMut, Par, Side, Spec};
 use std::fmt;
 
 /// Why a sparse operation failed.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, thiserror::Error)]
 #[non_exhaustive]
 pub enum LinalgError {
     /// The matrix is not numerically positive definite: the pivot of this (permuted) column was ≤ 0.
+    #[error("matrix is not positive definite (non-positive pivot at permuted column {pivot})")]
     NotPositiveDefinite {
         /// Index of the failing pivot in the permuted ordering.
         pivot: usize,
     },
     /// The symbolic analysis failed (out of memory or index overflow).
+    #[error("symbolic Cholesky analysis failed")]
     Symbolic,
     /// No numeric factorisation is available yet ([`Cholesky::factorize`] was not called or failed).
+    #[error("no numeric factorisation available")]
     NotFactorized,
     /// A vector has the wrong length.
+    #[error("vector length {got}, expected {expected}")]
     DimensionMismatch {
         /// Expected length.
         expected: usize,
@@ -42,26 +46,6 @@ pub enum LinalgError {
         got: usize,
     },
 }
-
-impl fmt::Display for LinalgError {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match *self {
-            Self::NotPositiveDefinite { pivot } => {
-                write!(
-                    f,
-                    "matrix is not positive definite (non-positive pivot at permuted column {pivot})"
-                )
-            }
-            Self::Symbolic => write!(f, "symbolic Cholesky analysis failed"),
-            Self::NotFactorized => write!(f, "no numeric factorisation available"),
-            Self::DimensionMismatch { expected, got } => {
-                write!(f, "vector length {got}, expected {expected}")
-            }
-        }
-    }
-}
-
-impl std::error::Error for LinalgError {}
 
 /// Upper-triangular compressed-column pattern of a symmetric `n × n` matrix (row ≤ column),
 /// with every diagonal entry present and row indices sorted within each column.

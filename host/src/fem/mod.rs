@@ -12,7 +12,6 @@ pub mod tetra;
 
 use crate::linalg::LinalgError;
 use crate::mesh::MeshError;
-use std::fmt;
 
 /// Isotropic linear elastic constants.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -58,22 +57,26 @@ impl Elasticity {
 }
 
 /// Why a finite-element model could not be built or stepped.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum FemError {
     /// A material or section constant is invalid.
+    #[error("invalid material: {what}")]
     Material {
         /// What is wrong.
         what: &'static str,
     },
     /// A model parameter (time step, element count, …) is invalid.
+    #[error("invalid parameter: {what}")]
     Parameter {
         /// What is wrong.
         what: &'static str,
     },
     /// The mesh is invalid.
-    Mesh(MeshError),
+    #[error("invalid mesh")]
+    Mesh(#[source] MeshError),
     /// A fixed (Dirichlet) node index does not exist.
+    #[error("fixed node {node} does not exist (the model has {node_count} nodes)")]
     FixedNodeOutOfRange {
         /// The offending node index.
         node: usize,
@@ -81,8 +84,10 @@ pub enum FemError {
         node_count: usize,
     },
     /// Every dof is fixed: there is nothing to solve.
+    #[error("every degree of freedom is fixed")]
     NoFreeDof,
     /// A vector argument has the wrong length.
+    #[error("{what} has length {got}, expected {expected}")]
     DimensionMismatch {
         /// Which argument.
         what: &'static str,
@@ -92,44 +97,37 @@ pub enum FemError {
         got: usize,
     },
     /// A force or displacement contains NaN or infinity.
+    #[error("{what} contains NaN or infinity")]
     NonFinite {
         /// Which argument.
         what: &'static str,
     },
-    /// The sparse factorisation or solve failed.
-    Linalg(LinalgError),
+    /// The system matrix `K + M/h²` is not positive definite: the Cholesky factorisation met a
+    /// non-positive pivot (e.g. inverted elements, or a free body without regularisation).
+    #[error(
+        "the system matrix is not positive definite (non-positive pivot at permuted column {pivot})"
+    )]
+    NotPositiveDefinite {
+        /// Index of the failing pivot in the permuted ordering.
+        pivot: usize,
+    },
+    /// Another sparse factorisation or solve failure (symbolic analysis, no factor yet, size).
+    #[error("sparse linear algebra failed")]
+    Linalg(#[source] LinalgError),
+    /// The background factorisation thread could not be started.
+    #[error("the background factorisation thread could not be started")]
+    WorkerSpawn(#[source] std::io::Error),
+    /// The background factorisation thread stopped (it panicked or was killed) while a job
+    /// was in flight or about to be sent.
+    #[error("the background factorisation thread stopped")]
+    WorkerStopped,
 }
-
-impl fmt::Display for FemError {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            Self::Material { what } => write!(f, "invalid material: {what}"),
-            Self::Parameter { what } => write!(f, "invalid parameter: {what}"),
-            Self::Mesh(e) => write!(f, "invalid mesh: {e}"),
-            Self::FixedNodeOutOfRange { node, node_count } => {
-                write!(
-                    f,
-                    "fixed node {node} does not exist (the model has {node_count} nodes)"
-                )
-            }
-            Self::NoFreeDof => write!(f, "every degree of freedom is fixed"),
-            Self::DimensionMismatch {
-                what,
-                expected,
-                got,
-            } => {
-                write!(f, "{what} has length {got}, expected {expected}")
-            }
-            Self::NonFinite { what } => write!(f, "{what} contains NaN or infinity"),
-            Self::Linalg(e) => write!(f, "linear solve failed: {e}"),
-        }
-    }
-}
-
-impl std::error::Error for FemError {}
 
 impl From<LinalgError> for FemError {
     fn from(e: LinalgError) -> Self {
-        Self::Linalg(e)
+        match e {
+            LinalgError::NotPositiveDefinite { pivot } => Self::NotPositiveDefinite { pivot },
+            other => Self::Linalg(other),
+        }
     }
 }

@@ -1,0 +1,178 @@
+//! Background factorisation: the gel's numeric Cholesky on a second thread, one job in flight at
+//! most, and the guard that factorises at once when the elements rotated too far since the
+//! matrix in use (see the module docs of [`crate::free_motion`]).
+
+use crate::fem::FemError;
+use crate::fem::tetra::largest_rotation_between;
+use crate::linalg::{Cholesky, LinalgError, SymmetricMatrix, SymmetricPattern};
+use nalgebra::Matrix3;
+use std::sync::mpsc::{Receiver, SyncSender, sync_channel};
+
+/// Background factorisation: the largest rotation of an element [rad] between the matrix of the
+/// factor in use and the current positions for which that factor is used; above it the step
+/// factorises its own matrix at once. The tangent `R K0 Rᵀ` changes only through the rotations,
+/// by about `2θ` relative, and a Newton step with a matrix off by ε contracts by about ε.
+pub const LAG_ROTATION_LIMIT: f64 = 0.2;
+
+/// What the start of a step found of the background factorisation.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub(super) enum Adopted {
+    /// A new factor is in use.
+    Yes,
+    /// No job was due.
+    #[default]
+    Idle,
+    /// The job failed (not positive definite); its result was dropped.
+    Failed,
+}
+
+/// What a step's free motion did with the factors (background mode).
+#[derive(Clone, Copy, Debug, Default)]
+pub(super) struct FactorEvent {
+    /// The step factorised its own matrix at once.
+    pub immediate: bool,
+    /// The step's matrix was sent to the worker.
+    pub submitted: bool,
+}
+
+/// A matrix to factorise and the factor buffer to do it in, passed to the worker and back.
+pub(super) struct Job {
+    pub chol: Cholesky,
+    pub matrix: SymmetricMatrix,
+    result: Result<(), LinalgError>,
+}
+
+impl Job {
+    /// Whether the worker's factorisation succeeded.
+    pub fn succeeded(&self) -> bool {
+        self.result.is_ok()
+    }
+}
+
+/// The background factorisation thread of a reduced system: one job in flight at most.
+pub(super) struct Background {
+    jobs: SyncSender<Box<Job>>,
+    done: Receiver<Box<Job>>,
+    /// The job buffer while no job is in flight.
+    pub spare: Option<Box<Job>>,
+    /// This step's matrix, written while the previous one is being factorised.
+    pub staged: SymmetricMatrix,
+    /// Factorisations finished in the background and used.
+    pub adopted: u64,
+    /// Factorisations made at once instead.
+    pub immediate: u64,
+    /// Steps since the job in flight was sent.
+    pub in_flight_steps: usize,
+}
+
+impl std::fmt::Debug for Background {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Background")
+            .field("in_flight", &self.spare.is_none())
+            .field("adopted", &self.adopted)
+            .finish()
+    }
+}
+
+impl Background {
+    /// Starts the worker with a second factor buffer for `pattern` (same ordering).
+    ///
+    /// # Errors
+    /// The symbolic factorisation of the second buffer, or [`FemError::WorkerSpawn`].
+    pub fn start(pattern: &SymmetricPattern, order: Option<&[usize]>) -> Result<Self, FemError> {
+        let chol = Cholesky::try_new_ordered(pattern, order, 1)?;
+        let (jobs, inbox) = sync_channel::<Box<Job>>(1);
+        let (outbox, done) = sync_channel::<Box<Job>>(1);
+        std::thread::Builder::new()
+            .name("needle-factor".into())
+            .spawn(move || {
+                // Ends when the system (the sender) is dropped.
+                while let Ok(mut job) = inbox.recv() {
+                    let Job { chol, matrix, .. } = &mut *job;
+                    job.result = chol.factorize(matrix);
+                    if outbox.send(job).is_err() {
+                        return;
+                    }
+                }
+            })
+            .map_err(FemError::WorkerSpawn)?;
+        Ok(Self {
+            jobs,
+            done,
+            spare: Some(Box::new(Job {
+                chol,
+                matrix: SymmetricMatrix::zeros(pattern.clone()),
+                result: Ok(()),
+            })),
+            staged: SymmetricMatrix::zeros(pattern.clone()),
+            adopted: 0,
+            immediate: 0,
+            in_flight_steps: 0,
+        })
+    }
+
+    /// Waits for the job in flight, if any, and returns it.
+    ///
+    /// # Errors
+    /// [`FemError::WorkerStopped`] if the worker is gone.
+    pub fn finish(&mut self) -> Result<Option<Box<Job>>, FemError> {
+        if self.spare.is_some() {
+            return Ok(None);
+        }
+        self.done
+            .recv()
+            .map(Some)
+            .map_err(|_| FemError::WorkerStopped)
+    }
+
+    /// Sends `job` to the worker.
+    ///
+    /// # Errors
+    /// [`FemError::WorkerStopped`] if the worker is gone.
+    pub fn send(&mut self, job: Box<Job>) -> Result<(), FemError> {
+        self.in_flight_steps = 0;
+        self.jobs.send(job).map_err(|_| FemError::WorkerStopped)
+    }
+}
+
+/// The rotation guard of the background factorisation: the element rotations of the matrix of
+/// the factor in use and of the matrix being factorised, and the last measured lag.
+#[derive(Debug)]
+pub(super) struct LagGuard {
+    in_use: Vec<Matrix3<f64>>,
+    sent: Vec<Matrix3<f64>>,
+    /// Largest rotation of an element between the matrix of the factor in use and the current
+    /// positions [rad] (0 after a factorisation at once).
+    pub lag: f64,
+}
+
+impl LagGuard {
+    /// A guard for `elements` elements at rest.
+    pub fn new(elements: usize) -> Self {
+        Self {
+            in_use: vec![Matrix3::identity(); elements],
+            sent: vec![Matrix3::identity(); elements],
+            lag: 0.0,
+        }
+    }
+
+    /// Whether the factor in use (just adopted when `adopted` says so) may serve a step whose
+    /// elements have `rotations`.
+    pub fn accept(&mut self, adopted: Adopted, rotations: &[Matrix3<f64>]) -> bool {
+        if adopted == Adopted::Yes {
+            std::mem::swap(&mut self.in_use, &mut self.sent);
+        }
+        self.lag = largest_rotation_between(rotations, &self.in_use);
+        self.lag <= LAG_ROTATION_LIMIT
+    }
+
+    /// Records which matrix the step factorised or sent.
+    pub fn record(&mut self, event: FactorEvent, rotations: &[Matrix3<f64>]) {
+        if event.immediate {
+            self.in_use.copy_from_slice(rotations);
+            self.lag = 0.0;
+        } else if event.submitted {
+            self.sent.copy_from_slice(rotations);
+        }
+    }
+}

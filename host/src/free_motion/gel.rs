@@ -1,0 +1,186 @@
+//! The gel: corotational tetrahedra, 3 dofs per node, Dirichlet nodes eliminated.
+
+use super::{Elements, FeModel, ModelLayout};
+use crate::fem::tetra::{CorotationalTetra, Kinematics};
+use crate::fem::{Elasticity, FemError};
+use crate::mesh::TetMesh;
+use nalgebra::{Matrix3, Vector3};
+
+/// Parameters of the gel model.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GelParams {
+    /// Elastic constants (E [MPa], ν).
+    pub elasticity: Elasticity,
+    /// Density [t/mm³] (water-like gel: 1e-9); used only with a time step.
+    pub density: f64,
+    /// Pseudo time step `h` [s] of the `M/h²` term; `None` for the static Newton step.
+    pub time_step: Option<f64>,
+    /// Corotational (the paper's model) or linear kinematics.
+    pub kinematics: Kinematics,
+    /// Refactorise the matrix every this many steps (1 = every step); with the background
+    /// factorisation, the depth of the pipeline.
+    pub refactor_every: usize,
+    /// Factorise on a second thread while the steps go on, and use the factor `refactor_every`
+    /// steps later (see the module docs).
+    pub background_factorization: bool,
+}
+
+impl Default for GelParams {
+    fn default() -> Self {
+        Self {
+            elasticity: Elasticity {
+                young_modulus: 0.005,
+                poisson_ratio: 0.45,
+            },
+            density: 1e-9,
+            time_step: None,
+            kinematics: Kinematics::Corotational,
+            refactor_every: 1,
+            background_factorization: false,
+        }
+    }
+}
+
+/// Fill-reducing elimination order of a sparse factorisation (chosen once, at construction).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum FillOrdering {
+    /// Approximate minimum degree (faer's default).
+    Amd,
+    /// Geometric nested dissection on the node positions
+    /// ([`crate::linalg::nested_dissection_order`]).
+    #[default]
+    NestedDissection,
+}
+
+/// The gel's elements: the rest mesh, its corotational tetrahedra and the clamped nodes.
+#[derive(Debug)]
+pub struct Tets {
+    mesh: TetMesh,
+    tetra: CorotationalTetra,
+    fixed_nodes: Vec<usize>,
+}
+
+impl Elements for Tets {
+    const NODE_DOFS: usize = 3;
+
+    fn add_internal_forces(&mut self, positions: &[Vector3<f64>], f_int: &mut [f64]) {
+        self.tetra.update_rotations(positions);
+        self.tetra.add_internal_forces(positions, f_int);
+    }
+
+    fn entry_dofs(&self) -> impl Iterator<Item = (usize, usize)> + '_ {
+        (0..self.tetra.len()).flat_map(|e| self.tetra.stiffness_entry_dofs(e))
+    }
+
+    fn assemble(&self, slots: &[u32], values: &mut [f64]) {
+        self.tetra.assemble(slots, values, 1.0);
+    }
+
+    fn displace(
+        &mut self,
+        positions: &mut [Vector3<f64>],
+        dx: &[f64],
+        free: &dyn Fn(usize) -> bool,
+    ) {
+        for (i, p) in positions.iter_mut().enumerate() {
+            for k in 0..3 {
+                if free(3 * i + k) {
+                    p[k] += dx[3 * i + k];
+                }
+            }
+        }
+    }
+
+    fn rotations(&self) -> &[Matrix3<f64>] {
+        self.tetra.rotations()
+    }
+}
+
+/// The gel: corotational tetrahedra with eliminated Dirichlet nodes, and its sparse system.
+pub type GelModel = FeModel<Tets>;
+
+impl FeModel<Tets> {
+    /// Builds the model on `mesh` (its nodes are the rest configuration [mm]) with the nodes
+    /// `fixed_nodes` clamped (all three dofs eliminated).
+    ///
+    /// # Errors
+    /// Invalid mesh or material, fixed node out of range, no free dof, bad time step, or the
+    /// symbolic factorisation failing.
+    pub fn try_new(
+        mesh: TetMesh,
+        fixed_nodes: &[usize],
+        params: &GelParams,
+    ) -> Result<Self, FemError> {
+        Self::try_new_with_ordering(mesh, fixed_nodes, params, FillOrdering::default())
+    }
+
+    /// As [`GelModel::try_new`] with an explicit fill-reducing ordering.
+    ///
+    /// # Errors
+    /// As [`GelModel::try_new`].
+    pub fn try_new_with_ordering(
+        mesh: TetMesh,
+        fixed_nodes: &[usize],
+        params: &GelParams,
+        ordering: FillOrdering,
+    ) -> Result<Self, FemError> {
+        let tetra = CorotationalTetra::try_new(&mesh, &params.elasticity, params.kinematics)?;
+        let n = mesh.nodes.len();
+        let regularization = match params.time_step {
+            None => vec![0.0; 3 * n],
+            Some(h) => {
+                if !(h > 0.0 && h.is_finite())
+                    || !(params.density >= 0.0 && params.density.is_finite())
+                {
+                    return Err(FemError::Parameter {
+                        what: "gel time step must be positive and density non-negative",
+                    });
+                }
+                let m = tetra.lumped_mass(n, params.density);
+                (0..3 * n).map(|g| m[g / 3] / (h * h)).collect()
+            }
+        };
+        let coords: Vec<[f64; 3]> = (0..3 * n).map(|g| mesh.nodes[g / 3].into()).collect();
+        let nd = (ordering == FillOrdering::NestedDissection).then_some(coords.as_slice());
+        let mut sorted = fixed_nodes.to_vec();
+        sorted.sort_unstable();
+        sorted.dedup();
+        let positions = mesh.nodes.clone();
+        let elements = Tets {
+            mesh,
+            tetra,
+            fixed_nodes: sorted,
+        };
+        Self::build(
+            elements,
+            positions,
+            ModelLayout {
+                fixed_nodes,
+                regularization,
+                refactor_every: params.refactor_every,
+                dof_coords: nd,
+                background: params.background_factorization,
+            },
+        )
+    }
+
+    /// The rest mesh.
+    pub fn mesh(&self) -> &TetMesh {
+        &self.elements.mesh
+    }
+
+    /// The element data (rotations, rest stiffness).
+    pub fn tetra(&self) -> &CorotationalTetra {
+        &self.elements.tetra
+    }
+
+    /// Sorted indices of the clamped nodes.
+    pub fn fixed_nodes(&self) -> &[usize] {
+        &self.elements.fixed_nodes
+    }
+
+    /// Mutable node positions [mm] (e.g. to prescribe the displacement of fixed nodes).
+    pub fn positions_mut(&mut self) -> &mut [Vector3<f64>] {
+        &mut self.positions
+    }
+}

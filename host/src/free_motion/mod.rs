@@ -1,0 +1,365 @@
+//! Free motion (paper §III-D, step 1): one Newton iteration of static equilibrium per step,
+//!
+//! ```text
+//! (K(x) + M/h²) Δx_free = f_ext − f_int(x)
+//! ```
+//!
+//! for the gel ([`GelModel`], corotational tetrahedra, 3 dofs per node) and the needle
+//! ([`NeedleModel`], corotational beams, 6 dofs per node) — two separate sparse systems, one
+//! model type: [`FeModel`] holds the node positions, the reduced system and the free motion;
+//! its [`Elements`] ([`Tets`], [`Beams`]) hold what differs.
+//!
+//! - `K` is assembled into a sparse symmetric matrix whose pattern is built once, with a map
+//!   from every element-local entry to its value slot, so a step only writes values.
+//! - Dirichlet dofs (fixed gel nodes, a clamped needle base) are *eliminated*: the system has
+//!   one row per free dof; their displacement is zero and [`FeModel::solve`] returns zero there.
+//! - The `M/h²` term (lumped mass, pseudo time step `h`) makes each step a quasi-static
+//!   implicit step: a Newton step damped by the inertia of one time step. For the gel it is
+//!   optional (`time_step: None` gives the pure static Newton step of the paper). For the
+//!   needle it is what makes the system solvable: the needle hangs only on the base constraint
+//!   χ (Lagrange multipliers, not a Dirichlet condition), so its `K_n` alone has the six
+//!   rigid-body modes in its kernel. `M/h²` with the physical lumped mass (`ρAℓ/2`) and an
+//!   isotropic rotary inertia (`ρ(I_y+I_z)ℓ/2`) restrains those modes by the smallest honest
+//!   amount — the inertia of one step — instead of an arbitrary penalty, leaves the static
+//!   equilibrium unchanged (`Δx → 0` at equilibrium) and keeps `K_n + M/h²` symmetric positive
+//!   definite for the Cholesky factorisation. The compliance `K⁻¹` is then large but finite
+//!   along the rigid modes, which is physically right: the base constraint moves the needle.
+//! - The symbolic factorisation is done once; the numeric one every step, or every
+//!   `refactor_every` steps (the matrix is then a few steps old: cheaper, a less exact Newton
+//!   step), or when [`FeModel::request_refactor`] is called.
+//! - **Background factorisation** (`GelParams::background_factorization`): the numeric
+//!   factorisation runs on a second thread while the steps go on. With `refactor_every = r`, a
+//!   matrix assembled at step k is factorised during steps k … k + r − 1 and used from step
+//!   k + r for r steps (r = 1: every step solves with the matrix of the step before). The
+//!   right-hand side `f_ext − f_int(x)` is exact, so the equilibrium reached is the same; the
+//!   Newton matrix is a few steps old. The first step, a requested refactorisation, a failed
+//!   background factorisation, and a step whose elements rotated more than
+//!   [`LAG_ROTATION_LIMIT`] since the matrix in use factorise at once. The worker owns a second
+//!   factor buffer; the two are swapped, nothing is allocated per step.
+//! - All buffers are allocated at construction.
+//!
+//! Files: `system.rs` (the reduced system and its solves), `background.rs` (the factorisation
+//! thread and its rotation guard), `gel.rs` and `needle.rs` (the elements and constructors).
+
+// Units are written in brackets ([mm], [N]) as in the workspace style: not intra-doc links.
+#![allow(rustdoc::broken_intra_doc_links)]
+// Negated comparisons are deliberate: NaN must fail every validity check.
+#![allow(clippy::neg_cmp_op_on_partial_ord, clippy::nonminimal_bool)]
+
+mod background;
+mod gel;
+mod needle;
+mod system;
+
+pub use background::LAG_ROTATION_LIMIT;
+pub use gel::{FillOrdering, GelModel, GelParams, Tets};
+pub use needle::{Beams, NeedleModel, NeedleParams};
+
+use crate::fem::FemError;
+use crate::linalg::SymmetricMatrix;
+use background::LagGuard;
+use nalgebra::{Matrix3, Vector3};
+use system::{ReducedSystem, SystemLayout};
+
+/// The elements of an [`FeModel`]: what the gel's tetrahedra and the needle's beams do
+/// differently — internal forces, assembly, how an increment moves the nodes.
+pub trait Elements {
+    /// Dofs per node: 3 (translation [mm]) or 6 (translation [mm], then a world-frame rotation
+    /// increment [rad]).
+    const NODE_DOFS: usize;
+
+    /// Updates the element frames at the node `positions` [mm] and adds the internal forces
+    /// `f_int(x)` (`NODE_DOFS` per node) [N, N·mm] into `f_int`, which the caller zeroed.
+    fn add_internal_forces(&mut self, positions: &[Vector3<f64>], f_int: &mut [f64]);
+
+    /// The `(row, column)` global dofs of every stiffness entry, element after element, in the
+    /// order [`Elements::assemble`] writes them (the assembly's slot map follows this order).
+    fn entry_dofs(&self) -> impl Iterator<Item = (usize, usize)> + '_;
+
+    /// Adds the element stiffness `K(x)` of the last update into the matrix `values` through
+    /// the entry `slots` (`u32::MAX`: an entry on a fixed dof).
+    fn assemble(&self, slots: &[u32], values: &mut [f64]);
+
+    /// Moves the nodes by the increment `dx` (global dofs), ignoring the dofs `free` rejects.
+    fn displace(
+        &mut self,
+        positions: &mut [Vector3<f64>],
+        dx: &[f64],
+        free: &dyn Fn(usize) -> bool,
+    );
+
+    /// The element rotations of the last update, for the guard of the background
+    /// factorisation (empty: no guard).
+    fn rotations(&self) -> &[Matrix3<f64>] {
+        &[]
+    }
+}
+
+/// A finite-element model: node positions, its [`Elements`], and the reduced sparse system
+/// `K + M/h²` it steps with. [`GelModel`] and [`NeedleModel`] are its two instances.
+#[derive(Debug)]
+pub struct FeModel<E: Elements> {
+    elements: E,
+    positions: Vec<Vector3<f64>>,
+    sys: ReducedSystem,
+    slots: Vec<u32>,
+    f_int: Vec<f64>,
+    dx: Vec<f64>,
+    /// Background mode: the rotation guard.
+    lag: Option<LagGuard>,
+}
+
+/// Which dofs a model fixes, its regularisation, and its system settings.
+struct ModelLayout<'a> {
+    fixed_nodes: &'a [usize],
+    regularization: Vec<f64>,
+    refactor_every: usize,
+    dof_coords: Option<&'a [[f64; 3]]>,
+    background: bool,
+}
+
+impl<E: Elements> FeModel<E> {
+    /// Builds the model: the fixed-dof mask (all dofs of each fixed node), the reduced system
+    /// and its buffers.
+    fn build(
+        elements: E,
+        positions: Vec<Vector3<f64>>,
+        layout: ModelLayout<'_>,
+    ) -> Result<Self, FemError> {
+        let (n, d) = (positions.len(), E::NODE_DOFS);
+        let mut fixed = vec![false; d * n];
+        for &node in layout.fixed_nodes {
+            if node >= n {
+                return Err(FemError::FixedNodeOutOfRange {
+                    node,
+                    node_count: n,
+                });
+            }
+            fixed[d * node..d * node + d].fill(true);
+        }
+        let (sys, slots) = ReducedSystem::try_new(SystemLayout {
+            fixed: &fixed,
+            entries: || elements.entry_dofs(),
+            regularization: &layout.regularization,
+            refactor_every: layout.refactor_every,
+            dof_coords: layout.dof_coords,
+            background: layout.background,
+        })?;
+        let lag = layout
+            .background
+            .then(|| LagGuard::new(elements.rotations().len()));
+        Ok(Self {
+            elements,
+            positions,
+            sys,
+            slots,
+            f_int: vec![0.0; d * n],
+            dx: vec![0.0; d * n],
+            lag,
+        })
+    }
+
+    /// The elements.
+    pub fn elements(&self) -> &E {
+        &self.elements
+    }
+
+    /// Current node positions [mm].
+    pub fn positions(&self) -> &[Vector3<f64>] {
+        &self.positions
+    }
+
+    /// Number of nodes.
+    pub fn node_count(&self) -> usize {
+        self.positions.len()
+    }
+
+    /// Number of dofs (`NODE_DOFS` per node).
+    pub fn dof_count(&self) -> usize {
+        E::NODE_DOFS * self.positions.len()
+    }
+
+    /// Number of free (non-eliminated) dofs: the size of the sparse system.
+    pub fn free_dof_count(&self) -> usize {
+        self.sys.free.len()
+    }
+
+    /// Whether global dof `dof` is eliminated (Dirichlet).
+    pub fn is_fixed_dof(&self, dof: usize) -> bool {
+        self.reduced_index(dof).is_none()
+    }
+
+    /// Reduced index of global dof `dof`, `None` if it is fixed.
+    pub fn reduced_index(&self, dof: usize) -> Option<usize> {
+        self.sys
+            .dof_map
+            .get(dof)
+            .and_then(|&m| (m != system::SKIP).then_some(m as usize))
+    }
+
+    /// First global dof of `node` when its first dof is free (a free gel node; every needle
+    /// node), `None` when it is fixed.
+    pub fn node_dof(&self, node: usize) -> Option<usize> {
+        let g = E::NODE_DOFS * node;
+        self.sys.is_free(g).then_some(g)
+    }
+
+    /// Steps since the last numeric factorisation (`None` before the first).
+    pub fn factor_age(&self) -> Option<usize> {
+        self.sys.factor_age
+    }
+
+    /// Forces a numeric refactorisation at the next [`FeModel::free_motion`].
+    pub fn request_refactor(&mut self) {
+        self.sys.refactor_requested = true;
+    }
+
+    /// The assembled reduced matrix `K + M/h²` of the last factorisation (free dofs only).
+    pub fn matrix(&self) -> &SymmetricMatrix {
+        &self.sys.matrix
+    }
+
+    /// Factorisations so far: (finished in the background and used, made at once) — `None`
+    /// without background factorisation.
+    pub fn background_counts(&self) -> Option<(u64, u64)> {
+        self.sys
+            .background
+            .as_ref()
+            .map(|b| (b.adopted, b.immediate))
+    }
+
+    /// Background mode: the largest rotation of an element between the matrix of the factor the
+    /// last free motion used and its positions [rad] (0 when it factorised at once, and
+    /// without background factorisation).
+    pub fn lag_rotation(&self) -> f64 {
+        self.lag.as_ref().map_or(0.0, |g| g.lag)
+    }
+
+    /// Updates the element frames and returns the internal forces `f_int(x)` at the current
+    /// positions (including at fixed nodes, where they are the reactions) [N, N·mm].
+    pub fn compute_internal_forces(&mut self) -> &[f64] {
+        self.f_int.iter_mut().for_each(|v| *v = 0.0);
+        self.elements
+            .add_internal_forces(&self.positions, &mut self.f_int);
+        &self.f_int
+    }
+
+    /// Element update and assembly: internal forces and the values of `K(x) + M/h²` written
+    /// into the fixed pattern (no factorisation).
+    pub fn assemble(&mut self) {
+        self.compute_internal_forces();
+        let (elements, slots) = (&self.elements, &self.slots);
+        self.sys.write_values(|v| elements.assemble(slots, v));
+    }
+
+    /// Numeric factorisation of the matrix last written by [`FeModel::assemble`] (resets the
+    /// factor age).
+    ///
+    /// # Errors
+    /// [`FemError::NotPositiveDefinite`].
+    pub fn factorize(&mut self) -> Result<(), FemError> {
+        self.sys.factorize()
+    }
+
+    /// [`FeModel::assemble`] then [`FeModel::factorize`], whatever the reuse setting.
+    ///
+    /// # Errors
+    /// [`FemError::NotPositiveDefinite`].
+    pub fn refactor(&mut self) -> Result<(), FemError> {
+        self.assemble();
+        self.factorize()
+    }
+
+    /// One free-motion step: updates the elements and the internal forces, refactorises if due
+    /// (or adopts the background factor), and solves `(K + M/h²) Δx_free = f_ext − f_int(x)`,
+    /// with `f_ext` dead loads (`NODE_DOFS` per node, world frame) [N, N·mm]. Returns `Δx_free`
+    /// (zero at fixed dofs); the positions are *not* changed (see
+    /// [`FeModel::apply_displacement`]).
+    ///
+    /// # Errors
+    /// Wrong length or non-finite `f_ext`, a failed factorisation, or a stopped background
+    /// thread.
+    pub fn free_motion(&mut self, f_ext: &[f64]) -> Result<&[f64], FemError> {
+        check_vec("external loads", f_ext, self.dof_count())?;
+        self.free_motion_with(Some(f_ext))
+    }
+
+    /// [`FeModel::free_motion`] without external load (the needle and the gel of an insertion:
+    /// every force comes through the constraints).
+    ///
+    /// # Errors
+    /// A failed factorisation, or a stopped background thread.
+    pub fn free_motion_unloaded(&mut self) -> Result<&[f64], FemError> {
+        self.free_motion_with(None)
+    }
+
+    fn free_motion_with(&mut self, f_ext: Option<&[f64]>) -> Result<&[f64], FemError> {
+        self.compute_internal_forces();
+        let (elements, slots, lag) = (&self.elements, &self.slots, &mut self.lag);
+        let event = self.sys.update_factor(
+            |adopted| {
+                lag.as_mut()
+                    .is_none_or(|g| g.accept(adopted, elements.rotations()))
+            },
+            |v| elements.assemble(slots, v),
+        )?;
+        if let Some(g) = self.lag.as_mut() {
+            g.record(event, self.elements.rotations());
+        }
+        for (i, (d, fi)) in self.dx.iter_mut().zip(&self.f_int).enumerate() {
+            *d = f_ext.map_or(0.0, |f| f[i]) - fi;
+        }
+        self.sys.solve_global(&mut self.dx)?;
+        Ok(&self.dx)
+    }
+
+    /// The last `Δx_free`.
+    pub fn last_free_motion(&self) -> &[f64] {
+        &self.dx
+    }
+
+    /// Solves `(K + M/h²) x = rhs` in place with the current factor (global dofs; fixed entries
+    /// ignored on input and zero on output). Used for compliance and correction.
+    ///
+    /// # Errors
+    /// Wrong length, or no factorisation yet.
+    pub fn solve(&mut self, rhs: &mut [f64]) -> Result<(), FemError> {
+        self.sys.solve_checked(rhs)
+    }
+
+    /// Solves for `ncols` right-hand sides at once (column-major, each of length
+    /// [`FeModel::dof_count`]).
+    ///
+    /// # Errors
+    /// Wrong length, or no factorisation yet.
+    pub fn solve_columns(&mut self, rhs: &mut [f64], ncols: usize) -> Result<(), FemError> {
+        self.sys.solve_global_many(rhs, ncols)
+    }
+
+    /// Moves the nodes by the increment `dx` (translations [mm]; for 6-dof nodes, world-frame
+    /// rotation vectors [rad]); entries of fixed dofs are ignored.
+    ///
+    /// # Errors
+    /// Wrong length or non-finite `dx`.
+    pub fn apply_displacement(&mut self, dx: &[f64]) -> Result<(), FemError> {
+        check_vec("displacement", dx, self.dof_count())?;
+        let sys = &self.sys;
+        self.elements
+            .displace(&mut self.positions, dx, &|g| sys.is_free(g));
+        Ok(())
+    }
+}
+
+fn check_vec(what: &'static str, v: &[f64], expected: usize) -> Result<(), FemError> {
+    if v.len() != expected {
+        return Err(FemError::DimensionMismatch {
+            what,
+            expected,
+            got: v.len(),
+        });
+    }
+    if !v.iter().all(|x| x.is_finite()) {
+        return Err(FemError::NonFinite { what });
+    }
+    Ok(())
+}

@@ -1,0 +1,364 @@
+//! The reduced (Dirichlet-eliminated) sparse system shared by the gel and the needle: the fixed
+//! pattern and its slots, the regularisation `M/h²`, the factor (made at once, or in the
+//! background), and the solves over global dofs.
+
+use super::background::{Adopted, Background, FactorEvent};
+use crate::fem::FemError;
+use crate::linalg::{Cholesky, SymmetricMatrix, SymmetricPattern, nested_dissection_order};
+
+/// Marks a fixed (eliminated) dof in the global → reduced map.
+pub(super) const SKIP: u32 = u32::MAX;
+
+/// The reduced sparse system `K + M/h²` over the free dofs of one model.
+#[derive(Debug)]
+pub(super) struct ReducedSystem {
+    /// Global dof → reduced index, `SKIP` for fixed dofs.
+    pub dof_map: Vec<u32>,
+    /// Reduced index → global dof.
+    pub free: Vec<usize>,
+    pub matrix: SymmetricMatrix,
+    diag_slots: Vec<usize>,
+    /// Added to the diagonal after assembly (M/h² per reduced dof).
+    regularization: Vec<f64>,
+    chol: Cholesky,
+    work: Vec<f64>,
+    work_many: Vec<f64>,
+    /// Steps since the factor in use was made (`None`: never factorised).
+    pub factor_age: Option<usize>,
+    refactor_every: usize,
+    pub refactor_requested: bool,
+    /// The factorisation thread (background mode).
+    pub background: Option<Background>,
+}
+
+/// How a reduced system is built: which global dofs are fixed, the element entries, the
+/// regularisation per global dof, the refactorisation period, the dof coordinates for a
+/// nested-dissection ordering, and whether to factorise in the background.
+pub(super) struct SystemLayout<'a, I: Iterator<Item = (usize, usize)>, F: Fn() -> I> {
+    pub fixed: &'a [bool],
+    pub entries: F,
+    pub regularization: &'a [f64],
+    pub refactor_every: usize,
+    pub dof_coords: Option<&'a [[f64; 3]]>,
+    pub background: bool,
+}
+
+impl ReducedSystem {
+    /// Builds the pattern over the free dofs, its symbolic factorisation, and the slot of every
+    /// element entry (`SKIP` for entries on fixed dofs).
+    ///
+    /// # Errors
+    /// [`FemError::NoFreeDof`], a failed symbolic factorisation, or a background thread that
+    /// cannot start.
+    pub fn try_new<I: Iterator<Item = (usize, usize)>, F: Fn() -> I>(
+        layout: SystemLayout<'_, I, F>,
+    ) -> Result<(Self, Vec<u32>), FemError> {
+        let ndof = layout.fixed.len();
+        let mut dof_map = vec![SKIP; ndof];
+        let mut free = Vec::new();
+        for g in 0..ndof {
+            if !layout.fixed[g] {
+                dof_map[g] = free.len() as u32;
+                free.push(g);
+            }
+        }
+        if free.is_empty() {
+            return Err(FemError::NoFreeDof);
+        }
+        let reduce = |(r, c): (usize, usize)| {
+            let (a, b) = (dof_map[r], dof_map[c]);
+            (a != SKIP && b != SKIP).then_some((a as usize, b as usize))
+        };
+        let entries = &layout.entries;
+        let pattern = SymmetricPattern::from_entries(free.len(), entries().filter_map(reduce));
+        let slots: Vec<u32> = entries()
+            .map(|e| {
+                reduce(e)
+                    .and_then(|(a, b)| pattern.slot(a, b))
+                    .map_or(SKIP, |s| s as u32)
+            })
+            .collect();
+        let diag_slots = (0..free.len())
+            .map(|k| pattern.slot(k, k).unwrap_or(0))
+            .collect();
+        let regularization = free.iter().map(|&g| layout.regularization[g]).collect();
+        let order = layout.dof_coords.map(|c| {
+            let reduced: Vec<[f64; 3]> = free.iter().map(|&g| c[g]).collect();
+            nested_dissection_order(&pattern, &reduced)
+        });
+        let chol = Cholesky::try_new_ordered(&pattern, order.as_deref(), 1)?;
+        let background = if layout.background {
+            Some(Background::start(&pattern, order.as_deref())?)
+        } else {
+            None
+        };
+        let n = free.len();
+        Ok((
+            Self {
+                dof_map,
+                free,
+                matrix: SymmetricMatrix::zeros(pattern),
+                diag_slots,
+                regularization,
+                chol,
+                work: vec![0.0; n],
+                work_many: Vec::new(),
+                factor_age: None,
+                refactor_every: layout.refactor_every.max(1),
+                refactor_requested: false,
+                background,
+            },
+            slots,
+        ))
+    }
+
+    /// Whether global dof `g` is free.
+    pub fn is_free(&self, g: usize) -> bool {
+        self.dof_map[g] != SKIP
+    }
+
+    fn needs_refactor(&self) -> bool {
+        match self.factor_age {
+            None => true,
+            Some(age) => self.refactor_requested || age + 1 >= self.refactor_every,
+        }
+    }
+
+    /// Writes `matrix`'s values: zero, the elements' contributions through `write`, then the
+    /// regularisation `M/h²` on the diagonal.
+    fn write_into(
+        matrix: &mut SymmetricMatrix,
+        diag_slots: &[usize],
+        regularization: &[f64],
+        write: impl FnOnce(&mut [f64]),
+    ) {
+        matrix.fill_zero();
+        write(&mut matrix.values);
+        for (&s, &r) in diag_slots.iter().zip(regularization) {
+            matrix.values[s] += r;
+        }
+    }
+
+    /// Writes the matrix values: zero, the elements' contributions through `write`, `M/h²`.
+    pub fn write_values(&mut self, write: impl FnOnce(&mut [f64])) {
+        Self::write_into(
+            &mut self.matrix,
+            &self.diag_slots,
+            &self.regularization,
+            write,
+        );
+    }
+
+    /// Background mode, start of a step: counts the steps of the job in flight and, once it is
+    /// due (`refactor_every` steps after its matrix), waits for it and puts it in use (a failed
+    /// one is dropped: the step then factorises at once).
+    fn adopt_background(&mut self) -> Result<Adopted, FemError> {
+        let every = self.refactor_every;
+        let Some(bg) = self.background.as_mut() else {
+            return Ok(Adopted::Idle);
+        };
+        if bg.spare.is_some() {
+            return Ok(Adopted::Idle);
+        }
+        bg.in_flight_steps += 1;
+        if bg.in_flight_steps < every {
+            return Ok(Adopted::Idle);
+        }
+        let Some(mut job) = bg.finish()? else {
+            return Ok(Adopted::Idle);
+        };
+        let ok = job.succeeded();
+        if ok {
+            std::mem::swap(&mut self.chol, &mut job.chol);
+            std::mem::swap(&mut self.matrix, &mut job.matrix);
+            bg.adopted += 1;
+        }
+        bg.spare = Some(job);
+        Ok(if ok { Adopted::Yes } else { Adopted::Failed })
+    }
+
+    /// Background mode: writes this step's matrix into the staging buffer.
+    fn stage_background(&mut self, write: &impl Fn(&mut [f64])) {
+        let Some(bg) = self.background.as_mut() else {
+            return;
+        };
+        Self::write_into(
+            &mut bg.staged,
+            &self.diag_slots,
+            &self.regularization,
+            write,
+        );
+    }
+
+    /// Background mode: makes the staged matrix the one to factorise at once.
+    fn unstage_background(&mut self) {
+        if let Some(bg) = self.background.as_mut() {
+            std::mem::swap(&mut self.matrix, &mut bg.staged);
+        }
+    }
+
+    /// Background mode: sends the staged matrix to the worker.
+    fn submit_background(&mut self) -> Result<(), FemError> {
+        let Some(bg) = self.background.as_mut() else {
+            return Ok(());
+        };
+        let Some(mut job) = bg.spare.take() else {
+            return Ok(());
+        };
+        std::mem::swap(&mut job.matrix, &mut bg.staged);
+        bg.send(job)
+    }
+
+    /// Background mode: waits for a job in flight and drops its result (a synchronous
+    /// factorisation supersedes it).
+    fn discard_background(&mut self) -> Result<(), FemError> {
+        if let Some(bg) = self.background.as_mut()
+            && let Some(job) = bg.finish()?
+        {
+            bg.spare = Some(job);
+        }
+        Ok(())
+    }
+
+    /// The factor of a step: refactorises if due (`write` fills the elements' values). In
+    /// background mode `lag_ok` says whether the factor in use (just adopted when its argument
+    /// says so) may serve this step.
+    ///
+    /// # Errors
+    /// A failed factorisation, or a stopped background thread.
+    pub fn update_factor(
+        &mut self,
+        lag_ok: impl FnOnce(Adopted) -> bool,
+        write: impl Fn(&mut [f64]),
+    ) -> Result<FactorEvent, FemError> {
+        if self.background.is_some() {
+            return self.update_factor_background(lag_ok, write);
+        }
+        if self.needs_refactor() {
+            self.write_values(write);
+            self.factorize()?;
+        } else if let Some(age) = self.factor_age.as_mut() {
+            *age += 1;
+        }
+        Ok(FactorEvent::default())
+    }
+
+    fn update_factor_background(
+        &mut self,
+        lag_ok: impl FnOnce(Adopted) -> bool,
+        write: impl Fn(&mut [f64]),
+    ) -> Result<FactorEvent, FemError> {
+        let mut event = FactorEvent::default();
+        let Some(bg) = self.background.as_ref() else {
+            return Ok(event);
+        };
+        // A job in flight is due after `refactor_every` steps (1: the step after its
+        // matrix). Assemble this step's matrix first when it will be sent (no job in flight
+        // after this step's adoption): that overlaps the tail of the running factorisation.
+        let due = bg.spare.is_none() && bg.in_flight_steps + 1 >= self.refactor_every;
+        let will_submit = bg.spare.is_some() || due;
+        if will_submit {
+            self.stage_background(&write);
+        }
+        let adopted = self.adopt_background()?;
+        match adopted {
+            Adopted::Yes => self.factor_age = Some(0),
+            Adopted::Idle => {
+                if let Some(age) = self.factor_age.as_mut() {
+                    *age += 1;
+                }
+            }
+            Adopted::Failed => self.factor_age = None,
+        }
+        let in_use_ok = self.factor_age.is_some() && lag_ok(adopted);
+        if !in_use_ok || self.refactor_requested {
+            // No factor yet, a request, a failed background factorisation, or elements
+            // that rotated too far since the matrix in use: factorise now.
+            if !will_submit {
+                self.stage_background(&write);
+            }
+            self.unstage_background();
+            // A job still in flight holds an older matrix than this one: drop it.
+            self.discard_background()?;
+            self.factorize_now()?;
+            event.immediate = true;
+            if let Some(bg) = self.background.as_mut() {
+                bg.immediate += 1;
+            }
+        } else if self.background.as_ref().is_some_and(|b| b.spare.is_some()) {
+            self.submit_background()?;
+            event.submitted = true;
+        }
+        Ok(event)
+    }
+
+    /// [`Self::solve_global`] after checking the length (one value per global dof).
+    pub fn solve_checked(&mut self, rhs: &mut [f64]) -> Result<(), FemError> {
+        if rhs.len() != self.dof_map.len() {
+            return Err(FemError::DimensionMismatch {
+                what: "right-hand side",
+                expected: self.dof_map.len(),
+                got: rhs.len(),
+            });
+        }
+        self.solve_global(rhs)
+    }
+
+    /// Numeric factorisation of the assembled values (a background job in flight is dropped).
+    pub fn factorize(&mut self) -> Result<(), FemError> {
+        self.discard_background()?;
+        self.factorize_now()
+    }
+
+    fn factorize_now(&mut self) -> Result<(), FemError> {
+        self.factor_age = None;
+        self.chol.factorize(&self.matrix)?;
+        self.factor_age = Some(0);
+        self.refactor_requested = false;
+        Ok(())
+    }
+
+    /// Solves in place over global dofs (fixed entries set to zero).
+    pub fn solve_global(&mut self, rhs: &mut [f64]) -> Result<(), FemError> {
+        for (k, &g) in self.free.iter().enumerate() {
+            self.work[k] = rhs[g];
+        }
+        self.chol.solve_in_place(&mut self.work)?;
+        rhs.iter_mut().for_each(|v| *v = 0.0);
+        for (k, &g) in self.free.iter().enumerate() {
+            rhs[g] = self.work[k];
+        }
+        Ok(())
+    }
+
+    /// Solves `ncols` column-major global right-hand sides in place.
+    pub fn solve_global_many(&mut self, rhs: &mut [f64], ncols: usize) -> Result<(), FemError> {
+        let ndof = self.dof_map.len();
+        if rhs.len() != ndof * ncols {
+            return Err(FemError::DimensionMismatch {
+                what: "right-hand sides",
+                expected: ndof * ncols,
+                got: rhs.len(),
+            });
+        }
+        let n = self.free.len();
+        // Grows once to the largest column count used, then reused.
+        if self.work_many.len() < n * ncols {
+            self.work_many.resize(n * ncols, 0.0);
+        }
+        let buf = &mut self.work_many[..n * ncols];
+        for c in 0..ncols {
+            for (k, &g) in self.free.iter().enumerate() {
+                buf[c * n + k] = rhs[c * ndof + g];
+            }
+        }
+        self.chol.solve_many_in_place(buf, ncols)?;
+        rhs.iter_mut().for_each(|v| *v = 0.0);
+        for c in 0..ncols {
+            for (k, &g) in self.free.iter().enumerate() {
+                rhs[c * ndof + g] = buf[c * n + k];
+            }
+        }
+        Ok(())
+    }
+}
