@@ -1,8 +1,8 @@
 //! The whole step of the complex benchmark insertion (FM + CD + CC + the core's 7–8 constraint
 //! solves + correction) at the paper's four mesh sizes, measured mid-insertion:
 //!
-//! - `full_step_<n>_nodes`: one [`World::step`](needle_host::world::World::step) of the complex
-//!   scene with a gel of about `n` nodes, the tip about 20 mm deep in the gel (300 steps of
+//! - `full_step_<n>_nodes`: one [`Pipeline::step`](needle_host::step::Pipeline::step) of the
+//!   complex scene, the core in this process ([`needle_bridge::InProcess`]), with a gel of about `n` nodes, the tip about 20 mm deep in the gel (300 steps of
 //!   0.1 mm are run once in the setup, not timed). The gel is factorised in the background
 //!   (the scene default).
 //! - `full_step_<n>_nodes_synchronous` (1500 and 1800 nodes): the same with
@@ -21,10 +21,11 @@
 //! Run: `cargo bench -p needle-host --bench full_step`.
 
 use criterion::{Criterion, SamplingMode, criterion_group, criterion_main};
-use needle_host::bodies::build;
-use needle_host::run::planned_steps;
+use needle_bridge::InProcess;
 use needle_host::scene::Scene;
-use needle_host::world::StepReport;
+use needle_host::setup::Setup;
+use needle_host::step::{Pipeline, ROWS, StepReport};
+use needle_host::world::World;
 use std::hint::black_box;
 use std::time::{Duration, Instant};
 
@@ -45,6 +46,39 @@ fn median(mut v: Vec<f64>) -> f64 {
     v[v.len() / 2]
 }
 
+/// The complex scene at about `nodes` gel nodes, the gel factorised in the background or not.
+fn scene(nodes: usize, background: bool) -> Scene {
+    Scene::builtin("complex")
+        .expect("embedded scene")
+        .with_overrides(&[
+            ("gel.box.nodes".into(), nodes.to_string()),
+            (
+                "solver.background_factorization".into(),
+                background.to_string(),
+            ),
+        ])
+        .expect("valid override")
+}
+
+/// The gel size, the depths and the median stage split of the timed steps.
+fn print_stages(name: &str, world: &World, depth0: f64, timed: &[StepReport]) {
+    let med = |f: fn(&StepReport) -> f64| median(timed.iter().map(f).collect());
+    eprintln!(
+        "{name}: {} gel nodes, depth {depth0:.1} → {:.1} mm over {} timed steps; \
+         stage medians [ms]: total {:.2} · FM {:.2} · CD {:.2} · CC {:.2} · SC {:.2} · corr {:.2} · interaction {:.2}",
+        world.gel.node_count(),
+        world.depth(),
+        timed.len(),
+        med(|r| r.times.total()),
+        med(|r| r.times.fm),
+        med(|r| r.times.cd),
+        med(|r| r.times.cc),
+        med(|r| r.times.sc),
+        med(|r| r.times.corr),
+        med(|r| r.times.interact),
+    );
+}
+
 fn bench_full_step(c: &mut Criterion) {
     let mut group = c.benchmark_group("full_step");
     group.sample_size(10).sampling_mode(SamplingMode::Flat);
@@ -62,22 +96,16 @@ fn bench_full_step(c: &mut Criterion) {
         } else {
             format!("full_step_{nodes}_nodes_synchronous")
         };
-        let scene = Scene::builtin("complex")
-            .expect("embedded scene")
-            .with_overrides(&[
-                ("gel.box.nodes".into(), nodes.to_string()),
-                (
-                    "solver.background_factorization".into(),
-                    background.to_string(),
-                ),
-            ])
-            .expect("valid override");
-        let planned = planned_steps(&scene);
-        let mut world = build(&scene).expect("the benchmark scene builds");
+        let setup = Setup::build(&scene(nodes, background)).expect("the benchmark scene builds");
+        let planned = setup.plan.steps;
+        let (mut world, params) = (setup.world, setup.params);
+        let mut core = InProcess::<ROWS>::new(setup.robot, setup.inverse);
+        let mut pipeline = Pipeline::new(&world);
+        let mut step = move |world: &mut World| pipeline.step(world, &params, &mut core);
         let mut last = Duration::ZERO;
         for k in 0..SETUP_STEPS {
             let t = Instant::now();
-            world.step().expect("setup step");
+            step(&mut world).expect("setup step");
             if k >= SETUP_STEPS - LAST_SETUP_STEPS {
                 last += t.elapsed();
             }
@@ -99,27 +127,14 @@ fn bench_full_step(c: &mut Criterion) {
                         "the timed steps ran past the end of the path"
                     );
                     let t = Instant::now();
-                    let r = world.step().expect("timed step");
+                    let r = step(&mut world).expect("timed step");
                     elapsed += t.elapsed();
                     timed.push(black_box(r));
                 }
                 elapsed
             })
         });
-        let med = |f: fn(&StepReport) -> f64| median(timed.iter().map(f).collect());
-        eprintln!(
-            "{name}: {} gel nodes, depth {depth0:.1} → {:.1} mm over {} timed steps; \
-             stage medians [ms]: total {:.2} · FM {:.2} · CD {:.2} · CC {:.2} · SC {:.2} · corr {:.2}",
-            world.gel.model.positions().len(),
-            world.depth(),
-            timed.len(),
-            med(|r| r.times.total()),
-            med(|r| r.times.fm),
-            med(|r| r.times.cd),
-            med(|r| r.times.cc),
-            med(|r| r.times.sc),
-            med(|r| r.times.corr),
-        );
+        print_stages(&name, &world, depth0, &timed);
     }
     group.finish();
 }

@@ -7,7 +7,8 @@
 //!
 //! - `W_gh = Σ_{a∈g, b∈h, same model} s_a s_b D_a (P_a U_b) D_bᵀ`,
 //! - `C_oh = Σ_{b∈h, model of o} s_b A_o (P_o U_b) D_bᵀ` for each observation `o = A_o P_o x`,
-//! - the corrective motion `Δx = Σ_h Σ_{b∈h} s_b U_b D_bᵀ λ_h` (`x = x_free + K⁻¹ Hᵀ λ`).
+//! - the corrective motion `Δx = Σ_h Σ_{b∈h} s_b U_b D_bᵀ λ_h` (`x = x_free + K⁻¹ Hᵀ λ`,
+//!   [`crate::step::correct`]).
 //!
 //! Sign conventions are those of `docs/architecture.md` (`w = W λ − δ`, positive `δ` violated).
 
@@ -72,7 +73,11 @@ impl PointStore {
         }
     }
 
-    fn cols(&self, i: usize) -> &PointColumns {
+    /// The columns of point `i`.
+    ///
+    /// # Panics
+    /// If they were not computed (the compliance stage computes them before any use).
+    pub(crate) fn cols(&self, i: usize) -> &PointColumns {
         // Invariant: `compute_missing` ran before any frame is filled.
         self.points[i]
             .cols
@@ -271,25 +276,6 @@ impl ConstraintSet {
             }
         }
     }
-
-    /// The corrective motion `K⁻¹ Hᵀ λ` of each model, added to `needle_dx` and `gel_dx`.
-    pub fn add_correction(&self, lambda: &[f64], needle_dx: &mut [f64], gel_dx: &mut [f64]) {
-        let starts = self.starts();
-        for (hi, h) in self.groups.iter().enumerate() {
-            for b in &h.attachments {
-                let mut l = Vector3::zeros();
-                for r in 0..b.rows {
-                    l[r] = lambda[starts[hi] + b.row_offset + r];
-                }
-                let f = b.sign * b.d.transpose() * l;
-                let (store, out) = match b.model {
-                    Model::Needle => (&self.needle, &mut *needle_dx),
-                    Model::Gel => (&self.gel, &mut *gel_dx),
-                };
-                store.cols(b.point).add_response(&f, out);
-            }
-        }
-    }
 }
 
 /// `Kind::X as u32` for building row groups.
@@ -346,15 +332,9 @@ mod tests {
         d
     }
 
-    /// The frame's W, C and the correction equal the dense `H K⁻¹ Hᵀ` algebra.
-    #[test]
-    fn frame_blocks_match_dense_algebra() {
-        let (nn, nv) = (12, 18);
-        let (kn, kv) = (spd(nn, 1), spd(nv, 2));
-        let (kni, kvi) = (
-            kn.clone().try_inverse().unwrap(),
-            kv.clone().try_inverse().unwrap(),
-        );
+    /// A base group and a sliding group on a needle tip point and a gel point; returns the set
+    /// and the tip's point index.
+    fn sample_set() -> (ConstraintSet, usize) {
         let mut set = ConstraintSet::default();
         let base_t = set.needle.push(PointMap::single(0));
         let base_r = set.needle.push(PointMap::single(3));
@@ -419,20 +399,11 @@ mod tests {
             ],
             delta: [0.0; 6],
         });
-        let solve = |ki: &DMatrix<f64>, n: usize| {
-            let ki = ki.clone();
-            move |rhs: &mut [f64], cols: usize| -> Result<(), ()> {
-                for c in 0..cols {
-                    let b = DVector::from_column_slice(&rhs[c * n..(c + 1) * n]);
-                    rhs[c * n..(c + 1) * n].copy_from_slice((&ki * b).as_slice());
-                }
-                Ok(())
-            }
-        };
-        set.needle.compute_missing(nn, solve(&kni, nn)).unwrap();
-        set.gel.compute_missing(nv, solve(&kvi, nv)).unwrap();
+        (set, tip)
+    }
 
-        // Dense H.
+    /// The dense `H_n`, `H_v` of `set` on `nn` needle and `nv` gel dofs.
+    fn dense_h(set: &ConstraintSet, nn: usize, nv: usize) -> (DMatrix<f64>, DMatrix<f64>) {
         let m = set.rows();
         let mut hn = DMatrix::zeros(m, nn);
         let mut hv = DMatrix::zeros(m, nv);
@@ -451,6 +422,35 @@ mod tests {
                 }
             }
         }
+        (hn, hv)
+    }
+
+    /// The frame's W, C and the correction equal the dense `H K⁻¹ Hᵀ` algebra.
+    #[test]
+    fn frame_blocks_match_dense_algebra() {
+        let (nn, nv) = (12, 18);
+        let (kn, kv) = (spd(nn, 1), spd(nv, 2));
+        let (kni, kvi) = (
+            kn.clone().try_inverse().unwrap(),
+            kv.clone().try_inverse().unwrap(),
+        );
+        let (mut set, tip) = sample_set();
+        let eye = Matrix3::identity();
+        let solve = |ki: &DMatrix<f64>, n: usize| {
+            let ki = ki.clone();
+            move |rhs: &mut [f64], cols: usize| -> Result<(), ()> {
+                for c in 0..cols {
+                    let b = DVector::from_column_slice(&rhs[c * n..(c + 1) * n]);
+                    rhs[c * n..(c + 1) * n].copy_from_slice((&ki * b).as_slice());
+                }
+                Ok(())
+            }
+        };
+        set.needle.compute_missing(nn, solve(&kni, nn)).unwrap();
+        set.gel.compute_missing(nv, solve(&kvi, nv)).unwrap();
+
+        let m = set.rows();
+        let (hn, hv) = dense_h(&set, nn, nv);
         let w_dense = &hn * &kni * hn.transpose() + &hv * &kvi * hv.transpose();
 
         let tip_dir = Vector3::new(0.0, 0.0, 1.0);
@@ -515,7 +515,7 @@ mod tests {
         }
         let lambda: Vec<f64> = (0..m).map(|i| 0.1 * i as f64 - 0.3).collect();
         let (mut dxn, mut dxv) = (vec![0.0; nn], vec![0.0; nv]);
-        set.add_correction(&lambda, &mut dxn, &mut dxv);
+        crate::step::correct::add_correction(&set, &lambda, &mut dxn, &mut dxv);
         let l = DVector::from_vec(lambda);
         assert!((DVector::from_vec(dxn) - &kni * hn.transpose() * &l).norm() < 1e-13);
         assert!((DVector::from_vec(dxv) - &kvi * hv.transpose() * &l).norm() < 1e-13);

@@ -14,22 +14,44 @@ use vtkio::model::{
     VertexNumbers, Vtk,
 };
 
-/// An output error: which file and why.
-#[derive(Debug)]
+/// An output error: which file, and why (its source).
+#[derive(Debug, thiserror::Error)]
+#[error("{}", file.display())]
 pub struct OutputError {
-    /// The file being written.
+    /// The file (or folder) being written.
     pub file: PathBuf,
     /// Why it failed.
-    pub reason: String,
+    #[source]
+    pub source: OutputFailure,
 }
 
-impl std::fmt::Display for OutputError {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(f, "{}: {}", self.file.display(), self.reason)
+/// Why an output could not be written.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum OutputFailure {
+    /// The file or folder could not be created or written.
+    #[error(transparent)]
+    Io(#[from] std::io::Error),
+    /// The CSV writer failed.
+    #[error(transparent)]
+    Csv(#[from] csv::Error),
+    /// The VTK writer failed.
+    #[error(transparent)]
+    Vtk(#[from] vtkio::Error),
+    /// The summary could not be serialised.
+    #[error(transparent)]
+    Json(#[from] serde_json::Error),
+}
+
+impl OutputError {
+    /// A failure writing `file`.
+    pub fn new(file: &Path, source: impl Into<OutputFailure>) -> Self {
+        Self {
+            file: file.to_owned(),
+            source: source.into(),
+        }
     }
 }
-
-impl std::error::Error for OutputError {}
 
 fn flat(points: &[Vector3<f64>]) -> Vec<f64> {
     points.iter().flat_map(|p| [p.x, p.y, p.z]).collect()
@@ -87,10 +109,8 @@ pub fn write_vtk(
             },
         }),
     };
-    vtk.export_ascii(path).map_err(|e| OutputError {
-        file: path.to_owned(),
-        reason: e.to_string(),
-    })
+    vtk.export_ascii(path)
+        .map_err(|e| OutputError::new(path, e))
 }
 
 /// Writes a tetrahedral mesh with its displacement from `rest`.
@@ -200,10 +220,7 @@ impl MetricsWriter {
     /// # Errors
     /// [`OutputError`] naming the file.
     pub fn create(path: &Path, obstacles: usize) -> Result<Self, OutputError> {
-        let err = |e: csv::Error| OutputError {
-            file: path.to_owned(),
-            reason: e.to_string(),
-        };
+        let err = |e: csv::Error| OutputError::new(path, e);
         let mut out = csv::Writer::from_path(path).map_err(err)?;
         let mut header = vec![
             "step", "c_mm", "tip_x", "tip_y", "tip_z", "target_x", "target_y", "target_z",
@@ -257,10 +274,9 @@ impl MetricsWriter {
         row.push(m.rows.to_string());
         row.extend(m.time_ms.iter().map(|v| v.to_string()));
         row.extend(m.q.iter().map(|v| v.to_string()));
-        self.out.write_record(&row).map_err(|e| OutputError {
-            file: self.file.clone(),
-            reason: e.to_string(),
-        })
+        self.out
+            .write_record(&row)
+            .map_err(|e| OutputError::new(&self.file, e))
     }
 
     /// Flushes the file.
@@ -268,10 +284,9 @@ impl MetricsWriter {
     /// # Errors
     /// [`OutputError`] naming the file.
     pub fn flush(&mut self) -> Result<(), OutputError> {
-        self.out.flush().map_err(|e| OutputError {
-            file: self.file.clone(),
-            reason: e.to_string(),
-        })
+        self.out
+            .flush()
+            .map_err(|e| OutputError::new(&self.file, e))
     }
 }
 
@@ -345,5 +360,6 @@ mod tests {
         )
         .unwrap_err();
         assert!(e.to_string().contains("/nonexistent-dir/x.vtk"), "{e}");
+        assert!(matches!(e.source, OutputFailure::Vtk(_)), "{e:?}");
     }
 }

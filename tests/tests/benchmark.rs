@@ -96,7 +96,7 @@ fn naive_baseline_runs_on_the_complex_path_and_tracks_worse() {
     );
     // Mean error inside the gel over the steps both runs made.
     let common = naive.reports.len();
-    let mean = |reports: &[needle_host::world::StepReport]| {
+    let mean = |reports: &[needle_host::step::StepReport]| {
         let inside: Vec<f64> = reports[..common]
             .iter()
             .filter(|r| r.inserted)

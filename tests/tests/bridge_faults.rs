@@ -20,7 +20,7 @@ use needle_core::payload::{Command, ComplianceFrame, ValidationError};
 use needle_core::synthetic::rigid_needle_frame;
 use needle_host::run::{RunOptions, run_with};
 use needle_host::scene::Scene;
-use needle_host::world::ROWS;
+use needle_host::step::ROWS;
 use std::time::Duration;
 use util::*;
 

@@ -15,7 +15,7 @@ mod util;
 use needle_bridge::{ControllerOptions, SharedMemoryHost, run_controller, setup_fingerprint};
 use needle_host::run::{RunOptions, run, run_with};
 use needle_host::scene::Scene;
-use needle_host::world::ROWS;
+use needle_host::step::ROWS;
 use std::sync::atomic::AtomicBool;
 use std::time::Duration;
 use util::*;

@@ -12,7 +12,7 @@ mod util;
 use needle_bridge::{SharedMemoryHost, setup_fingerprint};
 use needle_host::run::{RunOptions, run_with};
 use needle_host::scene::Scene;
-use needle_host::world::ROWS;
+use needle_host::step::ROWS;
 use std::time::Duration;
 use util::*;
 

@@ -4,10 +4,40 @@
 
 use nalgebra::Vector3;
 use needle_core::ik::{IkParams, solve_ik};
-use needle_host::bodies::{Simulation, build};
 use needle_host::constraints::GroupRole;
+use needle_host::open_loop::OpenLoop;
 use needle_host::scene::Scene;
-use needle_host::world::StepReport;
+use needle_host::setup::Setup;
+use needle_host::step::{Pipeline, StepParams, StepReport};
+use needle_host::world::World;
+
+/// A world driven open-loop: each step is one constraint solve at the joints given for it.
+struct Simulation {
+    world: World,
+    params: StepParams,
+    pipeline: Pipeline,
+    open_loop: OpenLoop,
+}
+
+fn build(scene: &Scene) -> Result<Simulation, needle_host::error::SetupError> {
+    let s = Setup::build(scene)?;
+    Ok(Simulation {
+        pipeline: Pipeline::new(&s.world),
+        open_loop: OpenLoop::new(s.robot, s.inverse, Vec::new()),
+        world: s.world,
+        params: s.params,
+    })
+}
+
+impl Simulation {
+    /// One step at joints `q` (the target advances on the scene's schedule).
+    fn step_at(&mut self, q: [f64; 6]) -> StepReport {
+        self.open_loop.joints.push(q);
+        self.pipeline
+            .step(&mut self.world, &self.params, &mut self.open_loop)
+            .expect("step")
+    }
+}
 
 /// A straight vertical insertion on a coarse gel: path from (300, 0, 60) down to z = 20, with a
 /// constant axial resistance of 0.05 N per sliding point so that the shaft drags the gel.
@@ -34,9 +64,9 @@ radius = 1.0
 }
 
 /// Joints that put the needle base at `base` with the needle along `axis`, from `seed`.
-fn ik(sim: &Simulation, base: Vector3<f64>, axis: Vector3<f64>, seed: &[f64; 6]) -> [f64; 6] {
+fn ik(sim: &World, base: Vector3<f64>, axis: Vector3<f64>, seed: &[f64; 6]) -> [f64; 6] {
     let r = solve_ik(
-        &sim.chain,
+        &sim.robot,
         [base.x, base.y, base.z],
         [axis.x, axis.y, axis.z],
         seed,
@@ -47,14 +77,15 @@ fn ik(sim: &Simulation, base: Vector3<f64>, axis: Vector3<f64>, seed: &[f64; 6])
     r.q
 }
 
-/// Moves the needle base straight down by `step` per step for `n` steps (open loop).
+/// Moves the needle base straight down by `step` per step for `n` steps (open loop; the
+/// target follows the scene's schedule, 0.1 mm per step).
 fn descend(sim: &mut Simulation, step: f64, n: usize, reports: &mut Vec<StepReport>) {
     let axis = Vector3::new(0.0, 0.0, -1.0);
     for _ in 0..n {
-        let b = sim.base_pose(&sim.q).translation + step * axis;
-        let q = ik(sim, b, axis, &sim.q.clone());
-        let c = sim.c + step;
-        let r = sim.step_with(c, Some(q)).expect("step");
+        let w = &sim.world;
+        let b = w.base_pose(&w.q).translation + step * axis;
+        let q = ik(w, b, axis, &w.q);
+        let r = sim.step_at(q);
         assert!(r.tip.iter().all(|v| v.is_finite()));
         reports.push(r);
     }
@@ -64,10 +95,11 @@ fn descend(sim: &mut Simulation, step: f64, n: usize, reports: &mut Vec<StepRepo
 #[ignore = "forward-simulation scenario (release, ~20 s): run with --include-ignored"]
 fn vertical_insertion_punctures_once_slides_and_stays_straight_and_symmetric() {
     let scene = vertical_scene(600);
-    let mut sim = build(&scene).expect("build");
+    let mut s = build(&scene).expect("build");
     let mut reports = Vec::new();
     // 5 mm of approach, then 25 mm more.
-    descend(&mut sim, 0.1, 300, &mut reports);
+    descend(&mut s, 0.1, 300, &mut reports);
+    let sim = &s.world;
 
     // Puncture happens when, and only when, the contact's normal force reaches p_f — once.
     let pf = scene.interaction.puncture_force;
@@ -124,7 +156,7 @@ fn vertical_insertion_punctures_once_slides_and_stays_straight_and_symmetric() {
 
     // The base constraint holds: needle base on B(q).
     let b = sim.base_pose(&sim.q);
-    let base = sim.needle.model.positions()[0];
+    let base = sim.needle.positions()[0];
     assert!(
         (base - b.translation).norm() < 1e-3,
         "base off by {}",
@@ -132,7 +164,7 @@ fn vertical_insertion_punctures_once_slides_and_stays_straight_and_symmetric() {
     );
 
     // The needle stays straight: every node within 0.05 mm (L/2400) of the vertical through the base.
-    for p in sim.needle.model.positions() {
+    for p in sim.needle.positions() {
         let lateral = ((p.x - base.x).powi(2) + (p.y - base.y).powi(2)).sqrt();
         assert!(
             lateral < 0.05,
@@ -142,7 +174,7 @@ fn vertical_insertion_punctures_once_slides_and_stays_straight_and_symmetric() {
     }
 
     // The gel is symmetric about the needle: mirrored nodes (y → −y) have mirrored displacements.
-    let gel = &sim.gel.model;
+    let gel = &sim.gel;
     let rest = &gel.mesh().nodes;
     let umax = gel
         .positions()
@@ -180,27 +212,27 @@ fn vertical_insertion_punctures_once_slides_and_stays_straight_and_symmetric() {
 #[ignore = "forward-simulation scenario (release, ~20 s): run with --include-ignored"]
 fn lateral_push_bends_needle_and_gel_with_equal_and_opposite_forces() {
     let scene = vertical_scene(600);
-    let mut sim = build(&scene).expect("build");
+    let mut s = build(&scene).expect("build");
     let mut reports = Vec::new();
-    descend(&mut sim, 0.1, 250, &mut reports);
-    assert!(sim.punctured && sim.sliding.len() >= 2);
-    let gel_before: Vec<_> = sim.gel.model.positions().to_vec();
-    let tip_before = sim.tip();
+    descend(&mut s, 0.1, 250, &mut reports);
+    assert!(s.world.punctured && s.world.sliding.len() >= 2);
+    let gel_before: Vec<_> = s.world.gel.positions().to_vec();
+    let tip_before = s.world.tip();
     // Push the base 3 mm along +x, keeping the needle vertical.
     let axis = Vector3::new(0.0, 0.0, -1.0);
     for _ in 0..30 {
-        let b = sim.base_pose(&sim.q).translation + Vector3::new(0.1, 0.0, 0.0);
-        let q = ik(&sim, b, axis, &sim.q.clone());
-        let c = sim.c;
-        let r = sim.step_with(c, Some(q)).expect("step");
-        reports.push(r);
+        let w = &s.world;
+        let b = w.base_pose(&w.q).translation + Vector3::new(0.1, 0.0, 0.0);
+        let q = ik(w, b, axis, &w.q);
+        reports.push(s.step_at(q));
     }
     // Settle at the final pose.
     for _ in 0..20 {
-        let q = sim.q;
-        let c = sim.c;
-        reports.push(sim.step_with(c, Some(q)).expect("step"));
+        let q = s.world.q;
+        reports.push(s.step_at(q));
     }
+    let forces = s.pipeline.needle_forces();
+    let sim = &s.world;
     // The needle bends about the entry point: the base moved 3 mm, the tip (held in the gel)
     // much less, and the shaft is no longer straight.
     let base_dx = 3.0;
@@ -209,7 +241,7 @@ fn lateral_push_bends_needle_and_gel_with_equal_and_opposite_forces() {
         tip_dx.abs() < 0.5 * base_dx,
         "tip moved {tip_dx} mm for a 3 mm base push"
     );
-    let p = sim.needle.model.positions();
+    let p = sim.needle.positions();
     let (b0, t0) = (p[0], p[p.len() - 1]);
     let axis = (t0 - b0).normalize();
     let bend = p
@@ -225,9 +257,8 @@ fn lateral_push_bends_needle_and_gel_with_equal_and_opposite_forces() {
         .sliding
         .iter()
         .map(|s| {
-            s.at.position(sim.gel.model.positions(), &sim.gel.model.mesh().tets)
-                .x
-                - s.at.position(&gel_before, &sim.gel.model.mesh().tets).x
+            s.at.position(sim.gel.positions(), &sim.gel.mesh().tets).x
+                - s.at.position(&gel_before, &sim.gel.mesh().tets).x
         })
         .sum::<f64>()
         / sim.sliding.len() as f64;
@@ -237,7 +268,6 @@ fn lateral_push_bends_needle_and_gel_with_equal_and_opposite_forces() {
     );
     // Equal and opposite: at equilibrium the base's force on the needle balances the sliding
     // points' forces on it (and the gel receives the opposite of the latter).
-    let forces = sim.needle_forces();
     let base: Vector3<f64> = forces
         .iter()
         .filter(|(r, _)| *r == GroupRole::Base)
@@ -262,10 +292,11 @@ fn lateral_push_bends_needle_and_gel_with_equal_and_opposite_forces() {
 #[ignore = "forward-simulation scenario (release): run with --include-ignored"]
 fn embedded_path_and_obstacles_move_with_the_gel() {
     let scene = vertical_scene(600);
-    let mut sim = build(&scene).expect("build");
+    let mut s = build(&scene).expect("build");
     let mut reports = Vec::new();
-    descend(&mut sim, 0.1, 200, &mut reports);
-    let gel = &sim.gel.model;
+    descend(&mut s, 0.1, 200, &mut reports);
+    let sim = &s.world;
+    let gel = &sim.gel;
     let tets = &gel.mesh().tets;
     // The obstacle centre is the barycentric interpolation of its element's current nodes.
     let (e, _) = sim.obstacles[0];

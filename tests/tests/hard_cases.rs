@@ -6,11 +6,13 @@
 //! --test hard_cases -- --include-ignored`. Every test prints its measured figures on stderr
 //! (`-- --nocapture`); docs/hard-cases.md quotes them.
 
+use needle_bridge::InProcess;
 use needle_core::payload::StatusFlags;
-use needle_host::bodies::{Simulation, build, start_joints};
 use needle_host::run::{RunOptions, RunResult, run};
 use needle_host::scene::Scene;
-use needle_host::world::StepReport;
+use needle_host::setup::{Setup, start_joints};
+use needle_host::step::{Pipeline, ROWS, StepParams, StepReport};
+use needle_host::world::World;
 use std::path::PathBuf;
 
 /// The complex path's bounds (BENCHMARK.md, the paper's Fig. 6) [mm].
@@ -145,10 +147,39 @@ fn case1_stiffness_contrast_2kpa_gel_tracks_within_the_complex_bound() {
     within("soft gel E = 2 kPa", &r, COMPLEX_MEAN, COMPLEX_MAX);
 }
 
+/// A scene stepped by hand, the core in this process.
+struct Simulation {
+    world: World,
+    params: StepParams,
+    pipeline: Pipeline,
+    core: InProcess<ROWS>,
+}
+
+fn build(scene: &Scene) -> Simulation {
+    let s = Setup::build(scene).expect("scene builds");
+    Simulation {
+        pipeline: Pipeline::new(&s.world),
+        core: InProcess::new(s.robot, s.inverse),
+        world: s.world,
+        params: s.params,
+    }
+}
+
+impl Simulation {
+    /// Steps of a whole insertion (there and back for `back-and-forth`).
+    fn insertion_steps(&self) -> usize {
+        let total = self.world.path.total_length();
+        self.params.insertion.default_steps(total)
+    }
+}
+
 /// Step `k` of the scene's insertion schedule, checked: finite, no solve at the cap.
-fn checked_step(sim: &mut Simulation, scene: &Scene, total: f64, k: usize) -> StepReport {
-    let c = scene.insertion.target_arc(total, k);
-    let rep = sim.step_with(c, None).expect("step");
+fn checked_step(sim: &mut Simulation, k: usize) -> StepReport {
+    let rep = sim
+        .pipeline
+        .step(&mut sim.world, &sim.params, &mut sim.core)
+        .expect("step");
+    assert_eq!(rep.step, k);
     assert!(rep.error.is_finite() && rep.tip.iter().all(|v| v.is_finite()));
     assert_eq!(
         rep.solver.flags & StatusFlags::NOT_CONVERGED,
@@ -159,21 +190,17 @@ fn checked_step(sim: &mut Simulation, scene: &Scene, total: f64, k: usize) -> St
 }
 
 /// Largest distance of a gel node from its rest position [mm].
-fn rest_gap(sim: &Simulation) -> f64 {
+fn rest_gap(sim: &World) -> f64 {
     sim.gel
-        .model
         .positions()
         .iter()
-        .zip(&sim.gel.model.mesh().nodes)
+        .zip(&sim.gel.mesh().nodes)
         .map(|(x, x0)| (x - x0).norm())
         .fold(0.0, f64::max)
 }
 
-fn strain_now(sim: &Simulation) -> needle_host::fem::tetra::StrainStats {
-    sim.gel
-        .model
-        .tetra()
-        .strain_stats(sim.gel.model.positions())
+fn strain_now(sim: &World) -> needle_host::fem::tetra::StrainStats {
+    sim.gel.tetra().strain_stats(sim.gel.positions())
 }
 
 /// What the lateral case measured.
@@ -194,13 +221,12 @@ fn lateral(young: &str) -> Lateral {
             ("gel.young_modulus", young),
         ],
     );
-    let mut sim = build(&scene).expect("scene builds");
-    let total = sim.path.total_length();
-    let steps = scene.insertion.default_steps(total);
+    let mut sim = build(&scene);
+    let steps = sim.insertion_steps();
     let (mut worst, mut inverted_max, mut residual) = (0.0f64, 0usize, 0.0f64);
     let (mut e_in, mut n_in, mut e_max) = (0.0, 0usize, 0.0f64);
     for k in 0..steps {
-        let rep = checked_step(&mut sim, &scene, total, k);
+        let rep = checked_step(&mut sim, k);
         residual = residual.max(rep.residual);
         if rep.inserted && k < steps / 2 {
             e_in += rep.error;
@@ -208,14 +234,14 @@ fn lateral(young: &str) -> Lateral {
             e_max = e_max.max(rep.error);
         }
         if k % 5 == 0 {
-            let st = strain_now(&sim);
+            let st = strain_now(&sim.world);
             assert!(st.max_strain.is_finite());
             worst = worst.max(st.max_strain);
             inverted_max = inverted_max.max(st.inverted);
         }
     }
-    let end = strain_now(&sim);
-    let rest_gap = rest_gap(&sim);
+    let end = strain_now(&sim.world);
+    let rest_gap = rest_gap(&sim.world);
     let e_mean = e_in / n_in.max(1) as f64;
     eprintln!(
         "lateral 20 mm, E = {young} MPa: steps {steps}, e_mean {e_mean:.3} mm, e_max {e_max:.3} mm on the way in, \
@@ -429,16 +455,15 @@ fn case8_twenty_thousand_steps_back_and_forth_leave_the_gel_at_rest() {
             ("insertion.mode", "\"back-and-forth\""),
         ],
     );
-    let mut sim = build(&scene).expect("scene builds");
-    let total = sim.path.total_length();
-    let period = scene.insertion.default_steps(total);
+    let mut sim = build(&scene);
+    let period = sim.insertion_steps();
     let steps = 20_000;
     let mut checks = Vec::new();
     let mut cycle_errors: Vec<(f64, usize)> = Vec::new();
     let mut punctures = 0;
     let mut residual = 0.0f64;
     for k in 0..steps {
-        let rep = checked_step(&mut sim, &scene, total, k);
+        let rep = checked_step(&mut sim, k);
         residual = residual.max(rep.residual);
         punctures += usize::from(rep.punctured_now);
         let cycle = k / period;
@@ -452,10 +477,10 @@ fn case8_twenty_thousand_steps_back_and_forth_leave_the_gel_at_rest() {
         // At each turning point in the air (the target back at the start), the needle is out.
         if (k + 1) % period == 0 {
             assert!(
-                !sim.punctured && sim.sliding.is_empty(),
+                !sim.world.punctured && sim.world.sliding.is_empty(),
                 "step {k}: still inserted"
             );
-            checks.push(rest_gap(&sim));
+            checks.push(rest_gap(&sim.world));
         }
     }
     let means: Vec<f64> = cycle_errors
@@ -487,9 +512,9 @@ fn case8_twenty_thousand_steps_back_and_forth_leave_the_gel_at_rest() {
 #[ignore = "hard case (release, ~15 s): run with --include-ignored"]
 fn case9_unstructured_mesh_with_slivers_tracks_within_the_simple_bound() {
     let scene = with("slivers.toml", &[]);
-    let sim = build(&scene).expect("the sliver mesh loads");
+    let sim = Setup::build(&scene).expect("the sliver mesh loads").world;
     // The mesh really has slivers: longest edge / shortest altitude above 20.
-    let mesh = sim.gel.model.mesh();
+    let mesh = sim.gel.mesh();
     let slivers = mesh
         .tets
         .iter()

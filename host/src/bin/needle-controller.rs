@@ -6,7 +6,7 @@
 //! again.
 //!
 //! It reads the same scene as `needle serve` only to build the robot chain and the inverse
-//! tuning (`Scene::robot`, `Scene::inverse_params`); the frames carry a fingerprint of that
+//! tuning (`needle_host::setup::core`); the frames carry a fingerprint of that
 //! set-up, and a controller started with another scene rejects them. At run time it uses
 //! `needle-core` and `needle-bridge` only.
 //!
@@ -17,8 +17,10 @@
 
 use clap::Parser;
 use needle_bridge::{BridgeConfig, ControllerOptions, run_controller};
+use needle_host::error::chain;
 use needle_host::scene::Scene;
-use needle_host::world::ROWS;
+use needle_host::setup;
+use needle_host::step::ROWS;
 use std::path::Path;
 use std::process::ExitCode;
 use std::sync::atomic::AtomicBool;
@@ -104,18 +106,14 @@ fn main() -> ExitCode {
         cli.deadline_ms,
         opts.bridge.frame_service_name()
     );
-    match run_controller::<ROWS>(
-        scene.robot(),
-        scene.inverse_params(),
-        &opts,
-        &AtomicBool::new(false),
-    ) {
+    let (robot, inverse) = setup::core(&scene);
+    match run_controller::<ROWS>(robot, inverse, &opts, &AtomicBool::new(false)) {
         Ok(stats) => {
             println!("needle-controller: {stats}");
             ExitCode::SUCCESS
         }
         Err(e) => {
-            eprintln!("error: {e}");
+            eprintln!("error: {}", chain(&e));
             ExitCode::FAILURE
         }
     }

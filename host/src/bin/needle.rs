@@ -7,13 +7,18 @@
 //! needle report --out report      # the benchmark report: every scene, controller and sweep
 //! ```
 
-use clap::{Parser, Subcommand, ValueEnum};
+use clap::{Args, Parser, Subcommand, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
 use needle_bridge::{BridgeConfig, SharedMemoryHost, setup_fingerprint};
+use needle_host::error::chain;
 use needle_host::report::{ReportOptions, report};
-use needle_host::run::{ControllerKind, RunOptions, RunSummary, planned_steps, run, run_with};
+use needle_host::run::{
+    ControllerKind, RunError, RunOptions, RunResult, RunSummary, StageTiming, planned_steps, run,
+    run_with,
+};
 use needle_host::scene::Scene;
-use needle_host::world::ROWS;
+use needle_host::setup;
+use needle_host::step::{ROWS, StepReport};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::Duration;
@@ -32,75 +37,10 @@ struct Cli {
 #[derive(Subcommand)]
 enum Command {
     /// Run one insertion and print its summary (error, clearances, stage times).
-    Run {
-        /// A scene file, or the name of an embedded scene (`simple`, `complex`).
-        #[arg(default_value = "complex")]
-        scene: String,
-        /// Controller driving the robot.
-        #[arg(long, value_enum, default_value_t = Ctl::Inverse)]
-        controller: Ctl,
-        /// Output folder (steps.csv, summary.json, VTK files); none: print only.
-        #[arg(long)]
-        out: Option<PathBuf>,
-        /// Number of steps (default: to the end of the path).
-        #[arg(long)]
-        steps: Option<usize>,
-        /// Write VTK files every N steps (needs --out; default: the scene's `output.vtk_every`).
-        #[arg(long)]
-        vtk_every: Option<usize>,
-        /// Gel mesh size (overrides the scene's box node count).
-        #[arg(long)]
-        nodes: Option<usize>,
-        /// Override a scene field, e.g. `--set inverse.delta_q=0.001` or
-        /// `--set 'inverse.jacobian="solve"'` (repeatable; the value is TOML).
-        #[arg(long = "set", value_name = "FIELD=VALUE")]
-        set: Vec<String>,
-        /// No progress bar.
-        #[arg(long)]
-        quiet: bool,
-        /// Print the summary as JSON.
-        #[arg(long)]
-        json: bool,
-    },
+    Run(RunArgs),
     /// Host process of a two-process run: publishes each step's compliance frame over iceoryx2
     /// shared memory and applies the command of `needle-controller` (run it with the same scene).
-    Serve {
-        /// A scene file, or the name of an embedded scene (`simple`, `complex`).
-        #[arg(default_value = "complex")]
-        scene: String,
-        /// Service-name prefix shared with `needle-controller --instance`.
-        #[arg(long, default_value = "needle")]
-        instance: String,
-        /// Hold the insertion when no command answered the frame within this long [ms].
-        #[arg(long, default_value_t = 50.0)]
-        deadline_ms: f64,
-        /// Free-running: start a step at most every this many ms (default: lock-step, as fast
-        /// as the commands come).
-        #[arg(long)]
-        period_ms: Option<f64>,
-        /// Stop when no command came for this many seconds (default: hold for ever).
-        #[arg(long)]
-        give_up_s: Option<f64>,
-        /// Output folder (steps.csv, summary.json, VTK files); none: print only.
-        #[arg(long)]
-        out: Option<PathBuf>,
-        /// Number of steps (default: to the end of the path).
-        #[arg(long)]
-        steps: Option<usize>,
-        /// Gel mesh size (overrides the scene's box node count).
-        #[arg(long)]
-        nodes: Option<usize>,
-        /// Override a scene field, e.g. `--set inverse.delta_q=0.001` or
-        /// `--set 'inverse.jacobian="solve"'` (repeatable; the value is TOML).
-        #[arg(long = "set", value_name = "FIELD=VALUE")]
-        set: Vec<String>,
-        /// No progress bar.
-        #[arg(long)]
-        quiet: bool,
-        /// Print the summary as JSON.
-        #[arg(long)]
-        json: bool,
-    },
+    Serve(ServeArgs),
     /// The benchmark report: both scenes under both controllers plus the mesh, δq, blend
     /// distance and constraint-spacing sweeps; writes summary.md, CSVs and SVG/PNG charts.
     Report {
@@ -117,6 +57,73 @@ enum Command {
         #[arg(long)]
         quiet: bool,
     },
+}
+
+/// The scene of a run and its overrides.
+#[derive(Args)]
+struct SceneArgs {
+    /// A scene file, or the name of an embedded scene (`simple`, `complex`).
+    #[arg(default_value = "complex")]
+    scene: String,
+    /// Gel mesh size (overrides the scene's box node count).
+    #[arg(long)]
+    nodes: Option<usize>,
+    /// Override a scene field, e.g. `--set inverse.delta_q=0.001` or
+    /// `--set 'inverse.jacobian="solve"'` (repeatable; the value is TOML).
+    #[arg(long = "set", value_name = "FIELD=VALUE")]
+    set: Vec<String>,
+}
+
+/// What a run writes and prints.
+#[derive(Args)]
+struct OutputArgs {
+    /// Output folder (steps.csv, summary.json, VTK files); none: print only.
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Number of steps (default: to the end of the path).
+    #[arg(long)]
+    steps: Option<usize>,
+    /// No progress bar.
+    #[arg(long)]
+    quiet: bool,
+    /// Print the summary as JSON.
+    #[arg(long)]
+    json: bool,
+}
+
+#[derive(Args)]
+struct RunArgs {
+    #[command(flatten)]
+    scene: SceneArgs,
+    /// Controller driving the robot.
+    #[arg(long, value_enum, default_value_t = Ctl::Inverse)]
+    controller: Ctl,
+    /// Write VTK files every N steps (needs --out; default: the scene's `output.vtk_every`).
+    #[arg(long)]
+    vtk_every: Option<usize>,
+    #[command(flatten)]
+    output: OutputArgs,
+}
+
+#[derive(Args)]
+struct ServeArgs {
+    #[command(flatten)]
+    scene: SceneArgs,
+    /// Service-name prefix shared with `needle-controller --instance`.
+    #[arg(long, default_value = "needle")]
+    instance: String,
+    /// Hold the insertion when no command answered the frame within this long [ms].
+    #[arg(long, default_value_t = 50.0)]
+    deadline_ms: f64,
+    /// Free-running: start a step at most every this many ms (default: lock-step, as fast
+    /// as the commands come).
+    #[arg(long)]
+    period_ms: Option<f64>,
+    /// Stop when no command came for this many seconds (default: hold for ever).
+    #[arg(long)]
+    give_up_s: Option<f64>,
+    #[command(flatten)]
+    output: OutputArgs,
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -162,8 +169,25 @@ fn customize(scene: Scene, nodes: Option<usize>, set: &[String]) -> Result<Scene
     scene.with_overrides(&overrides).map_err(|e| e.to_string())
 }
 
-fn progress(total: u64, quiet: bool) -> ProgressBar {
-    let bar = if quiet {
+/// The scene of the arguments, or the exit code of a usage error (printed).
+fn scene_of(a: &SceneArgs) -> Result<Scene, ExitCode> {
+    load_scene(&a.scene)
+        .and_then(|s| customize(s, a.nodes, &a.set))
+        .map_err(|e| {
+            eprintln!("error: {e}");
+            ExitCode::from(2)
+        })
+}
+
+/// Runs `f` with a progress bar over the steps of `scene` (hidden with `quiet`) as its
+/// observer.
+fn with_progress<R>(
+    scene: &Scene,
+    out: &OutputArgs,
+    f: impl FnOnce(&mut dyn FnMut(&StepReport)) -> R,
+) -> R {
+    let total = out.steps.unwrap_or_else(|| planned_steps(scene)) as u64;
+    let bar = if out.quiet {
         ProgressBar::hidden()
     } else {
         ProgressBar::new(total)
@@ -173,7 +197,26 @@ fn progress(total: u64, quiet: bool) -> ProgressBar {
             .unwrap_or_else(|_| ProgressStyle::default_bar())
             .progress_chars("=> "),
     );
-    bar
+    let result = f(&mut |r: &StepReport| {
+        bar.set_position(r.step as u64 + 1);
+        bar.set_message(format!(
+            "depth {:5.1} mm  error {:6.3} mm",
+            r.depth, r.error
+        ));
+    });
+    bar.finish_and_clear();
+    result
+}
+
+/// Prints the summary of a run (exit code 3 when it did not complete) or its error.
+fn finish(result: Result<RunResult, RunError>, json: bool) -> ExitCode {
+    match result {
+        Ok(r) => print_summary(&r.summary, json),
+        Err(e) => {
+            eprintln!("error: {}", chain(&e));
+            ExitCode::FAILURE
+        }
+    }
 }
 
 fn print_summary(s: &RunSummary, json: bool) -> ExitCode {
@@ -186,76 +229,7 @@ fn print_summary(s: &RunSummary, json: bool) -> ExitCode {
             }
         }
     } else {
-        println!(
-            "scene {} · controller {:?} · {} gel nodes",
-            s.scene, s.controller, s.gel_nodes
-        );
-        println!(
-            "steps {}/{}{}",
-            s.steps,
-            s.steps_planned,
-            match &s.stopped {
-                Some(r) => format!(" — stopped: {r}"),
-                None => String::new(),
-            }
-        );
-        println!(
-            "tracking error inside the gel: mean {:.3} mm, max {:.3} mm, final {:.3} mm (depth {:.1} mm, puncture at step {})",
-            s.e_mean_mm,
-            s.e_max_mm,
-            s.e_final_mm,
-            s.final_depth_mm,
-            s.puncture_step.map_or("—".to_string(), |k| k.to_string())
-        );
-        for c in &s.clearances {
-            println!(
-                "clearance to {}: {:.3} mm{}",
-                c.name,
-                c.min_mm,
-                if c.min_mm < 0.0 { "  (HIT)" } else { "" }
-            );
-        }
-        let t = &s.timing;
-        println!(
-            "time per step [ms] median / p99: total {:.2} / {:.2} · FM {:.2} / {:.2} · CD {:.2} / {:.2} · CC {:.2} / {:.2} · SC {:.2} / {:.2} · corr {:.2} / {:.2}",
-            t.total.median_ms,
-            t.total.p99_ms,
-            t.fm.median_ms,
-            t.fm.p99_ms,
-            t.cd.median_ms,
-            t.cd.p99_ms,
-            t.cc.median_ms,
-            t.cc.p99_ms,
-            t.sc.median_ms,
-            t.sc.p99_ms,
-            t.correction.median_ms,
-            t.correction.p99_ms
-        );
-        println!(
-            "mean time per step: {:.2} ms (FM {:.2} · CC {:.2})",
-            t.total.mean_ms, t.fm.mean_ms, t.cc.mean_ms
-        );
-        println!(
-            "Gauss-Seidel sweeps per step: mean {:.1}, max {} ({} steps hit the cap)",
-            s.gs_iterations_mean, s.gs_iterations_max, s.gs_not_converged_steps
-        );
-        println!(
-            "gel: largest principal strain {:.1} %, at most {} inverted elements",
-            100.0 * s.max_strain,
-            s.max_inverted_elements
-        );
-        if s.background_factorizations + s.immediate_factorizations > 0 {
-            println!(
-                "gel factorisations: {} on the background thread, {} at once",
-                s.background_factorizations, s.immediate_factorizations
-            );
-        }
-        if s.unreachable_steps + s.limit_steps > 0 {
-            println!(
-                "target unreachable in {} steps, a joint at its limit in {} steps",
-                s.unreachable_steps, s.limit_steps
-            );
-        }
+        print_text(s);
     }
     if s.holds > 0 {
         println!(
@@ -270,176 +244,203 @@ fn print_summary(s: &RunSummary, json: bool) -> ExitCode {
     }
 }
 
+fn print_text(s: &RunSummary) {
+    println!(
+        "scene {} · controller {:?} · {} gel nodes",
+        s.scene, s.controller, s.gel_nodes
+    );
+    println!(
+        "steps {}/{}{}",
+        s.steps,
+        s.steps_planned,
+        match &s.stopped {
+            Some(r) => format!(" — stopped: {r}"),
+            None => String::new(),
+        }
+    );
+    println!(
+        "tracking error inside the gel: mean {:.3} mm, max {:.3} mm, final {:.3} mm (depth {:.1} mm, puncture at step {})",
+        s.e_mean_mm,
+        s.e_max_mm,
+        s.e_final_mm,
+        s.final_depth_mm,
+        s.puncture_step.map_or("—".to_string(), |k| k.to_string())
+    );
+    for c in &s.clearances {
+        println!(
+            "clearance to {}: {:.3} mm{}",
+            c.name,
+            c.min_mm,
+            if c.min_mm < 0.0 { "  (HIT)" } else { "" }
+        );
+    }
+    print_timing(&s.timing);
+    println!(
+        "Gauss-Seidel sweeps per step: mean {:.1}, max {} ({} steps hit the cap)",
+        s.gs_iterations_mean, s.gs_iterations_max, s.gs_not_converged_steps
+    );
+    println!(
+        "gel: largest principal strain {:.1} %, at most {} inverted elements",
+        100.0 * s.max_strain,
+        s.max_inverted_elements
+    );
+    if s.background_factorizations + s.immediate_factorizations > 0 {
+        println!(
+            "gel factorisations: {} on the background thread, {} at once",
+            s.background_factorizations, s.immediate_factorizations
+        );
+    }
+    if s.unreachable_steps + s.limit_steps > 0 {
+        println!(
+            "target unreachable in {} steps, a joint at its limit in {} steps",
+            s.unreachable_steps, s.limit_steps
+        );
+    }
+}
+
+fn print_timing(t: &StageTiming) {
+    println!(
+        "time per step [ms] median / p99: total {:.2} / {:.2} · FM {:.2} / {:.2} · CD {:.2} / {:.2} · CC {:.2} / {:.2} · SC {:.2} / {:.2} · corr {:.2} / {:.2}",
+        t.total.median_ms,
+        t.total.p99_ms,
+        t.fm.median_ms,
+        t.fm.p99_ms,
+        t.cd.median_ms,
+        t.cd.p99_ms,
+        t.cc.median_ms,
+        t.cc.p99_ms,
+        t.sc.median_ms,
+        t.sc.p99_ms,
+        t.correction.median_ms,
+        t.correction.p99_ms
+    );
+    println!(
+        "mean time per step: {:.2} ms (FM {:.2} · CC {:.2})",
+        t.total.mean_ms, t.fm.mean_ms, t.cc.mean_ms
+    );
+}
+
+fn report_cmd(opts: &ReportOptions) -> ExitCode {
+    match report(opts) {
+        Ok(r) => {
+            let broke = r.runs.iter().filter(|x| !x.completed()).count();
+            println!(
+                "report: {} runs ({} did not complete) in {:.0} s, written to {}",
+                r.runs.len(),
+                broke,
+                r.wall_s,
+                r.out_dir.display()
+            );
+            for f in &r.files {
+                println!("  {}", f.display());
+            }
+            ExitCode::SUCCESS
+        }
+        Err(e) => {
+            eprintln!("error: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn run_cmd(a: RunArgs) -> ExitCode {
+    let scene = match scene_of(&a.scene) {
+        Ok(s) => s,
+        Err(code) => return code,
+    };
+    let opts = RunOptions {
+        controller: match a.controller {
+            Ctl::Inverse => ControllerKind::Inverse,
+            Ctl::Naive => ControllerKind::Naive,
+        },
+        steps: a.output.steps,
+        out_dir: a.output.out.clone(),
+        vtk_every: a.vtk_every,
+        ..RunOptions::default()
+    };
+    let result = with_progress(&scene, &a.output, |observe| run(&scene, &opts, observe));
+    finish(result, a.output.json)
+}
+
+fn serve_cmd(a: ServeArgs) -> ExitCode {
+    let scene = match scene_of(&a.scene) {
+        Ok(s) => s,
+        Err(code) => return code,
+    };
+    let positive = |x: f64| x.is_finite() && x > 0.0;
+    if !positive(a.deadline_ms)
+        || a.period_ms.is_some_and(|p| !positive(p))
+        || a.give_up_s.is_some_and(|g| !positive(g))
+    {
+        eprintln!("error: --deadline-ms, --period-ms and --give-up-s must be positive");
+        return ExitCode::from(2);
+    }
+    let cfg = BridgeConfig {
+        instance: a.instance,
+        deadline: Duration::from_secs_f64(a.deadline_ms * 1e-3),
+        handle_signals: true,
+        ..BridgeConfig::default()
+    };
+    let (robot, inverse) = setup::core(&scene);
+    needle_bridge::shm::quiet_logs();
+    let mut host =
+        match SharedMemoryHost::<ROWS>::connect(&cfg, setup_fingerprint(&robot, &inverse)) {
+            Ok(h) => h,
+            Err(e) => {
+                eprintln!("error: {}", chain(&e));
+                return ExitCode::FAILURE;
+            }
+        };
+    eprintln!(
+        "needle serve: scene {} · session {:016x} · frames on {} · commands from {} · {} dead node(s) cleaned, {} half-created service(s) removed",
+        scene.name,
+        host.session(),
+        cfg.frame_service_name(),
+        cfg.command_service_name(),
+        host.stats().dead_nodes_cleaned,
+        host.stats().hung_services_removed
+    );
+    eprintln!(
+        "needle serve: waiting for `needle-controller {} --instance {}`",
+        scene.name, cfg.instance
+    );
+    let opts = RunOptions {
+        controller: ControllerKind::Inverse,
+        steps: a.output.steps,
+        out_dir: a.output.out.clone(),
+        period: a.period_ms.map(|p| Duration::from_secs_f64(p * 1e-3)),
+        give_up_after: a.give_up_s.map(Duration::from_secs_f64),
+        ..RunOptions::default()
+    };
+    let result = with_progress(&scene, &a.output, |observe| {
+        run_with(&scene, &opts, &mut host, observe)
+    });
+    let st = host.stats();
+    eprintln!(
+        "needle serve: frames published {}, commands accepted {}, rejected {}, stale {}, timeouts {}",
+        st.frames_published,
+        st.commands_accepted,
+        st.commands_rejected,
+        st.commands_stale,
+        st.timeouts
+    );
+    finish(result, a.output.json)
+}
+
 fn main() -> ExitCode {
-    let cli = Cli::parse();
-    match cli.command {
+    match Cli::parse().command {
         Command::Report {
             out,
             quick,
             steps,
             quiet,
-        } => {
-            let opts = ReportOptions {
-                out_dir: out,
-                quick,
-                steps,
-                progress: !quiet,
-            };
-            match report(&opts) {
-                Ok(r) => {
-                    let broke = r.runs.iter().filter(|x| !x.completed()).count();
-                    println!(
-                        "report: {} runs ({} did not complete) in {:.0} s, written to {}",
-                        r.runs.len(),
-                        broke,
-                        r.wall_s,
-                        r.out_dir.display()
-                    );
-                    for f in &r.files {
-                        println!("  {}", f.display());
-                    }
-                    ExitCode::SUCCESS
-                }
-                Err(e) => {
-                    eprintln!("error: {e}");
-                    ExitCode::FAILURE
-                }
-            }
-        }
-        Command::Run {
-            scene,
-            controller,
-            out,
+        } => report_cmd(&ReportOptions {
+            out_dir: out,
+            quick,
             steps,
-            vtk_every,
-            nodes,
-            set,
-            quiet,
-            json,
-        } => {
-            let scene = match load_scene(&scene).and_then(|s| customize(s, nodes, &set)) {
-                Ok(s) => s,
-                Err(e) => {
-                    eprintln!("error: {e}");
-                    return ExitCode::from(2);
-                }
-            };
-            let opts = RunOptions {
-                controller: match controller {
-                    Ctl::Inverse => ControllerKind::Inverse,
-                    Ctl::Naive => ControllerKind::Naive,
-                },
-                steps,
-                out_dir: out,
-                vtk_every,
-                ..RunOptions::default()
-            };
-            let bar = progress(steps.unwrap_or_else(|| planned_steps(&scene)) as u64, quiet);
-            let result = run(&scene, &opts, |r| {
-                bar.set_position(r.step as u64 + 1);
-                bar.set_message(format!(
-                    "depth {:5.1} mm  error {:6.3} mm",
-                    r.depth, r.error
-                ));
-            });
-            bar.finish_and_clear();
-            match result {
-                Ok(r) => print_summary(&r.summary, json),
-                Err(e) => {
-                    eprintln!("error: {e}");
-                    ExitCode::FAILURE
-                }
-            }
-        }
-        Command::Serve {
-            scene,
-            instance,
-            deadline_ms,
-            period_ms,
-            give_up_s,
-            out,
-            steps,
-            nodes,
-            set,
-            quiet,
-            json,
-        } => {
-            let scene = match load_scene(&scene).and_then(|s| customize(s, nodes, &set)) {
-                Ok(s) => s,
-                Err(e) => {
-                    eprintln!("error: {e}");
-                    return ExitCode::from(2);
-                }
-            };
-            let positive = |x: f64| x.is_finite() && x > 0.0;
-            if !positive(deadline_ms)
-                || period_ms.is_some_and(|p| !positive(p))
-                || give_up_s.is_some_and(|g| !positive(g))
-            {
-                eprintln!("error: --deadline-ms, --period-ms and --give-up-s must be positive");
-                return ExitCode::from(2);
-            }
-            let cfg = BridgeConfig {
-                instance,
-                deadline: Duration::from_secs_f64(deadline_ms * 1e-3),
-                handle_signals: true,
-                ..BridgeConfig::default()
-            };
-            let setup = setup_fingerprint(&scene.robot(), &scene.inverse_params());
-            needle_bridge::shm::quiet_logs();
-            let mut host = match SharedMemoryHost::<ROWS>::connect(&cfg, setup) {
-                Ok(h) => h,
-                Err(e) => {
-                    eprintln!("error: {e}");
-                    return ExitCode::FAILURE;
-                }
-            };
-            eprintln!(
-                "needle serve: scene {} · session {:016x} · frames on {} · commands from {} · {} dead node(s) cleaned, {} half-created service(s) removed",
-                scene.name,
-                host.session(),
-                cfg.frame_service_name(),
-                cfg.command_service_name(),
-                host.stats().dead_nodes_cleaned,
-                host.stats().hung_services_removed
-            );
-            eprintln!(
-                "needle serve: waiting for `needle-controller {} --instance {}`",
-                scene.name, cfg.instance
-            );
-            let opts = RunOptions {
-                controller: ControllerKind::Inverse,
-                steps,
-                out_dir: out,
-                period: period_ms.map(|p| Duration::from_secs_f64(p * 1e-3)),
-                give_up_after: give_up_s.map(Duration::from_secs_f64),
-                ..RunOptions::default()
-            };
-            let bar = progress(steps.unwrap_or_else(|| planned_steps(&scene)) as u64, quiet);
-            let result = run_with(&scene, &opts, &mut host, |r| {
-                bar.set_position(r.step as u64 + 1);
-                bar.set_message(format!(
-                    "depth {:5.1} mm  error {:6.3} mm",
-                    r.depth, r.error
-                ));
-            });
-            bar.finish_and_clear();
-            let st = host.stats();
-            eprintln!(
-                "needle serve: frames published {}, commands accepted {}, rejected {}, stale {}, timeouts {}",
-                st.frames_published,
-                st.commands_accepted,
-                st.commands_rejected,
-                st.commands_stale,
-                st.timeouts
-            );
-            match result {
-                Ok(r) => print_summary(&r.summary, json),
-                Err(e) => {
-                    eprintln!("error: {e}");
-                    ExitCode::FAILURE
-                }
-            }
-        }
+            progress: !quiet,
+        }),
+        Command::Run(a) => run_cmd(a),
+        Command::Serve(a) => serve_cmd(a),
     }
 }

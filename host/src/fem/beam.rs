@@ -246,14 +246,15 @@ impl CorotationalBeams {
         &self.section
     }
 
-    /// Energy, internal force and symmetric Hessian of element `e` at node positions `x` [mm]
-    /// and orientations `q`.
-    pub fn element_state(
+    /// The corotational kinematics of element `e` as hyperdual functions of its 9 variables
+    /// (relative translation, rotation of each end): the current length [mm] and the local end
+    /// rotations `θ_1`, `θ_2` [rad] in the corotated frame.
+    fn local_kinematics(
         &self,
         e: usize,
         x: &[Vector3<f64>],
         q: &[UnitQuaternion<f64>],
-    ) -> BeamElementState {
+    ) -> (Hd, [V3; 2]) {
         let [a, b] = self.elements[e];
         let d0 = x[b] - x[a];
         let ends = [
@@ -300,6 +301,18 @@ impl CorotationalBeams {
                 + 1.0;
             hyperdual::scale(&v, g)
         });
+        (l, theta)
+    }
+
+    /// Energy, internal force and symmetric Hessian of element `e` at node positions `x` [mm]
+    /// and orientations `q`.
+    pub fn element_state(
+        &self,
+        e: usize,
+        x: &[Vector3<f64>],
+        q: &[UnitQuaternion<f64>],
+    ) -> BeamElementState {
+        let (l, theta) = self.local_kinematics(e, x, q);
         let l0 = self.rest_length[e];
         let du = l + (-l0);
         let tw = theta[1][0] - theta[0][0];

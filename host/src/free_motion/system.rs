@@ -56,11 +56,9 @@ impl ReducedSystem {
         let ndof = layout.fixed.len();
         let mut dof_map = vec![SKIP; ndof];
         let mut free = Vec::new();
-        for g in 0..ndof {
-            if !layout.fixed[g] {
-                dof_map[g] = free.len() as u32;
-                free.push(g);
-            }
+        for (g, _) in layout.fixed.iter().enumerate().filter(|(_, f)| !**f) {
+            dof_map[g] = free.len() as u32;
+            free.push(g);
         }
         if free.is_empty() {
             return Err(FemError::NoFreeDof);

@@ -1,0 +1,266 @@
+//! One insertion from start to end: the inverse controller (Algorithm 1) or the naive baseline,
+//! with outputs and a summary. The loop is
+//!
+//! ```text
+//! for each step { pipeline.step(world, params, transport); observers }
+//! ```
+//!
+//! - **Inverse** (the paper's method): the transport carries each frame to the core and its
+//!   command back — [`run`] calls the core in this process ([`InProcess`]), [`run_with`] takes
+//!   any transport (`needle serve` passes a [`needle_bridge::SharedMemoryHost`] and the core
+//!   runs in another process), paced and held by [`remote::Remote`] when it is late.
+//! - **Naive** (the paper's baseline): the joints of a rigid needle in a rigid gel, by IK
+//!   ([`naive::naive_trajectory`]), replayed through an [`OpenLoop`] transport. Where the replay
+//!   breaks down (IK out of reach, a failed solve, a non-finite state) the run stops cleanly and
+//!   says so.
+//!
+//! The observers: [`summary::Statistics`] (clearances, strain) for the summary, and the files
+//! ([`outputs`]: `steps.csv`, VTK frames, `summary.json`).
+
+pub mod naive;
+pub mod outputs;
+pub mod remote;
+pub mod summary;
+
+pub use crate::setup::planned_steps;
+pub use summary::{Clearance, RunSummary, STRAIN_EVERY, StageTiming, Timing};
+
+use crate::error::{SetupError, chain};
+use crate::open_loop::OpenLoop;
+use crate::output::OutputError;
+use crate::scene::Scene;
+use crate::setup::Setup;
+use crate::step::{Pipeline, ROWS, StepReport};
+use crate::world::World;
+use needle_bridge::{InProcess, Transport};
+use outputs::{MetricsCsv, SummaryJson, VtkFrames};
+use remote::Remote;
+use serde::Serialize;
+use std::path::PathBuf;
+use std::time::Duration;
+use summary::{Ending, Statistics};
+
+/// Which controller drives the robot.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ControllerKind {
+    /// The inverse FE controller (paper §IV).
+    Inverse,
+    /// Rigid-model IK replayed in the deformable simulation (paper §V-A baseline).
+    Naive,
+}
+
+/// Options of a run.
+#[derive(Clone, Debug)]
+pub struct RunOptions {
+    /// The controller.
+    pub controller: ControllerKind,
+    /// Number of steps (default: the scene's, else to the end of the path).
+    pub steps: Option<usize>,
+    /// Output folder for the CSV, the VTK files and the JSON summary (none: no files).
+    pub out_dir: Option<PathBuf>,
+    /// Write VTK files every this many steps (0: never; default: the scene's).
+    pub vtk_every: Option<usize>,
+    /// Free-running host: start a step at most every `period` (none: as fast as the answers
+    /// come — lock-step).
+    pub period: Option<Duration>,
+    /// Stop the run when no command has answered the current frame for this long (none: hold
+    /// for ever). Only a remote transport can time out.
+    pub give_up_after: Option<Duration>,
+}
+
+impl Default for RunOptions {
+    fn default() -> Self {
+        Self {
+            controller: ControllerKind::Inverse,
+            steps: None,
+            out_dir: None,
+            vtk_every: None,
+            period: None,
+            give_up_after: None,
+        }
+    }
+}
+
+/// What a run produces.
+pub struct RunResult {
+    /// The summary.
+    pub summary: RunSummary,
+    /// Every step's report.
+    pub reports: Vec<StepReport>,
+    /// Error against insertion depth `(depth, error)` for the steps inside the gel [mm].
+    pub error_by_depth: Vec<(f64, f64)>,
+}
+
+/// Why a run could not start or write its outputs. (A breakdown during the run is not an error:
+/// it ends the run and is reported in [`RunSummary::stopped`].)
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum RunError {
+    /// The simulation could not be set up.
+    #[error(transparent)]
+    Setup(#[from] SetupError),
+    /// An output file could not be written.
+    #[error(transparent)]
+    Output(#[from] OutputError),
+}
+
+/// What watches a run: called after every step with the world and the step's report, and once
+/// at the end with the summary.
+pub trait Observer {
+    /// After a step.
+    ///
+    /// # Errors
+    /// An output that cannot be written (the run stops with it).
+    fn step(&mut self, world: &World, report: &StepReport) -> Result<(), OutputError>;
+
+    /// At the end of the run.
+    ///
+    /// # Errors
+    /// An output that cannot be written.
+    fn finish(&mut self, _summary: &RunSummary) -> Result<(), OutputError> {
+        Ok(())
+    }
+}
+
+/// Runs a scene to the end (or its breakdown) with the core in this process ([`InProcess`]),
+/// calling `observe` after every step.
+///
+/// # Errors
+/// [`RunError`] if the simulation cannot be set up or an output cannot be written.
+///
+/// # Example
+/// ```
+/// use needle_host::run::{RunOptions, run};
+/// use needle_host::scene::Scene;
+///
+/// let scene = Scene::builtin("simple").unwrap()
+///     .with_overrides(&[("gel.box.nodes".into(), "300".into())]).unwrap();
+/// let r = run(&scene, &RunOptions { steps: Some(5), ..RunOptions::default() }, |_| {}).unwrap();
+/// assert_eq!(r.summary.steps, 5);
+/// assert!(r.reports.iter().all(|s| s.error.is_finite()));
+/// ```
+pub fn run(
+    scene: &Scene,
+    opts: &RunOptions,
+    observe: impl FnMut(&StepReport),
+) -> Result<RunResult, RunError> {
+    let setup = Setup::build(scene)?;
+    let mut core = InProcess::<ROWS>::new(setup.robot, setup.inverse);
+    run_setup(setup, opts, &mut core, observe)
+}
+
+/// [`run`] with the inverse controller reached through `transport` (in process, or in another
+/// process over shared memory). The naive baseline does not use the transport.
+///
+/// # Errors
+/// [`RunError`] if the simulation cannot be set up or an output cannot be written.
+pub fn run_with(
+    scene: &Scene,
+    opts: &RunOptions,
+    transport: &mut dyn Transport<ROWS>,
+    observe: impl FnMut(&StepReport),
+) -> Result<RunResult, RunError> {
+    run_setup(Setup::build(scene)?, opts, transport, observe)
+}
+
+/// The observers writing the files of a run into `opts.out_dir` (none without it).
+fn outputs(
+    opts: &RunOptions,
+    vtk_every: usize,
+    world: &World,
+) -> Result<Vec<Box<dyn Observer>>, OutputError> {
+    let Some(dir) = &opts.out_dir else {
+        return Ok(Vec::new());
+    };
+    std::fs::create_dir_all(dir).map_err(|e| OutputError::new(dir, e))?;
+    let mut out: Vec<Box<dyn Observer>> = vec![Box::new(MetricsCsv::create(dir, world)?)];
+    if vtk_every > 0 {
+        out.push(Box::new(VtkFrames::start(dir, vtk_every, world)?));
+    }
+    out.push(Box::new(SummaryJson(dir.clone())));
+    Ok(out)
+}
+
+/// [`run_with`] on a scene already set up (e.g. built or changed in code).
+///
+/// # Errors
+/// [`RunError::Output`] if an output cannot be written.
+pub fn run_setup(
+    setup: Setup,
+    opts: &RunOptions,
+    transport: &mut dyn Transport<ROWS>,
+    mut observe: impl FnMut(&StepReport),
+) -> Result<RunResult, RunError> {
+    let Setup {
+        mut world,
+        params,
+        robot,
+        inverse,
+        plan,
+    } = setup;
+    let steps = opts.steps.unwrap_or(plan.steps);
+    let mut files = outputs(opts, opts.vtk_every.unwrap_or(plan.vtk_every), &world)?;
+    // The naive baseline replays its trajectory (up to where the rigid IK failed) open loop.
+    let (mut open_loop, mut stopped) = match opts.controller {
+        ControllerKind::Inverse => (None, None),
+        ControllerKind::Naive => {
+            let (joints, stop) = naive::naive_trajectory(&world, &params.insertion, steps);
+            let replay = OpenLoop::new(robot, inverse, joints);
+            (Some(replay), stop.map(|e| chain(&e)))
+        }
+    };
+    let n = open_loop.as_ref().map_or(steps, |o| o.joints.len());
+    let core: &mut dyn Transport<ROWS> = match open_loop.as_mut() {
+        Some(o) => o,
+        None => transport,
+    };
+    let mut remote = Remote::new(core, opts.period, opts.give_up_after);
+    let mut pipeline = Pipeline::new(&world);
+    let mut stats = Statistics::new(&world, n);
+    let mut reports = Vec::with_capacity(n);
+    for k in 0..n {
+        remote.pace(world.c);
+        let r = match pipeline.step(&mut world, &params, &mut remote) {
+            Ok(r) if r.error.is_finite() && r.tip.iter().all(|v| v.is_finite()) => r,
+            Ok(_) => {
+                stopped = Some(format!("step {k}: the state became non-finite"));
+                break;
+            }
+            Err(e) => {
+                stopped = Some(remote.why_stopped(k, &e));
+                break;
+            }
+        };
+        stats.step(&world, &r)?;
+        for f in &mut files {
+            f.step(&world, &r)?;
+        }
+        observe(&r);
+        reports.push(r);
+    }
+    let summary = stats.summary(
+        &plan,
+        &world,
+        Ending {
+            controller: opts.controller,
+            steps_planned: steps,
+            stopped,
+            reports: &reports,
+            holds: (remote.holds, remote.held.as_secs_f64() * 1e3),
+        },
+    );
+    for f in &mut files {
+        f.finish(&summary)?;
+    }
+    let error_by_depth = reports
+        .iter()
+        .filter(|r| r.inserted)
+        .map(|r| (r.depth, r.error))
+        .collect();
+    Ok(RunResult {
+        summary,
+        reports,
+        error_by_depth,
+    })
+}

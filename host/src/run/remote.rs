@@ -1,0 +1,116 @@
+//! Pacing and holding for a core reached through a transport that can be late (another
+//! process): a free-running host starts a step at most every period; when no command arrives
+//! within the transport's deadline the host *holds the insertion* — applies nothing, does not
+//! advance the target, says so on stderr, and hands the same frame over again until an answer
+//! arrives or the give-up time has passed.
+
+use crate::error::{SimError, chain};
+use crate::step::ROWS;
+use needle_bridge::{ExchangeReport, Transport, TransportError};
+use needle_core::payload::{Command, ComplianceFrame};
+use std::time::{Duration, Instant};
+
+/// A transport wrapped with pacing and holding.
+pub struct Remote<'a> {
+    inner: &'a mut dyn Transport<ROWS>,
+    period: Option<Duration>,
+    next_start: Instant,
+    give_up_after: Option<Duration>,
+    /// The target of the last applied step, for the messages [mm].
+    c: f64,
+    /// Times the host held the insertion.
+    pub holds: usize,
+    /// Total time held.
+    pub held: Duration,
+    /// How long the last exchange waited before giving up (it returned a timeout).
+    pub gave_up: Option<Duration>,
+}
+
+impl<'a> Remote<'a> {
+    /// Wraps `inner`: a step at most every `period` (none: lock-step), give up after
+    /// `give_up_after` without a command (none: hold for ever).
+    pub fn new(
+        inner: &'a mut dyn Transport<ROWS>,
+        period: Option<Duration>,
+        give_up_after: Option<Duration>,
+    ) -> Self {
+        Self {
+            inner,
+            period,
+            next_start: Instant::now(),
+            give_up_after,
+            c: 0.0,
+            holds: 0,
+            held: Duration::ZERO,
+            gave_up: None,
+        }
+    }
+
+    /// Before a step from target `c` [mm]: waits until the step may start.
+    pub fn pace(&mut self, c: f64) {
+        self.c = c;
+        if let Some(p) = self.period {
+            let now = Instant::now();
+            if self.next_start > now {
+                std::thread::sleep(self.next_start - now);
+            }
+            self.next_start = self.next_start.max(now) + p;
+        }
+    }
+}
+
+impl Remote<'_> {
+    /// Why step `k` failed with `e`, as the run's summary says it.
+    pub fn why_stopped(&self, k: usize, e: &SimError) -> String {
+        match self.gave_up {
+            Some(w) => format!("step {k}: no command for {:.1} s", w.as_secs_f64()),
+            None => format!("step {k}: {}", chain(e)),
+        }
+    }
+}
+
+impl Transport<ROWS> for Remote<'_> {
+    fn exchange(
+        &mut self,
+        frame: &ComplianceFrame<ROWS>,
+        cmd: &mut Command<ROWS>,
+    ) -> Result<ExchangeReport, TransportError> {
+        let (start, k) = (Instant::now(), frame.sequence);
+        let mut holding = false;
+        loop {
+            match self.inner.exchange(frame, cmd) {
+                Ok(r) => {
+                    if holding {
+                        let h = start.elapsed();
+                        self.held += h;
+                        eprintln!(
+                            "needle: command received after {:.0} ms: resuming at step {k}",
+                            h.as_secs_f64() * 1e3
+                        );
+                    }
+                    return Ok(r);
+                }
+                Err(TransportError::Timeout { waited }) => {
+                    if !holding {
+                        holding = true;
+                        self.holds += 1;
+                        eprintln!(
+                            "needle: no command within {:.0} ms: holding the insertion at step {k} (c = {:.2} mm)",
+                            waited.as_secs_f64() * 1e3,
+                            self.c
+                        );
+                    }
+                    if let Some(limit) = self.give_up_after
+                        && start.elapsed() >= limit
+                    {
+                        let waited = start.elapsed();
+                        self.held += waited;
+                        self.gave_up = Some(waited);
+                        return Err(TransportError::Timeout { waited });
+                    }
+                }
+                Err(e) => return Err(e),
+            }
+        }
+    }
+}

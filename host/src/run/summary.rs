@@ -1,0 +1,260 @@
+//! The summary of a run: tracking error, clearances, stage times, solver and gel statistics —
+//! gathered step by step by [`Statistics`] and written once at the end.
+
+use super::{ControllerKind, Observer};
+use crate::output::OutputError;
+use crate::setup::Plan;
+use crate::step::StepReport;
+use crate::world::World;
+use needle_core::payload::StatusFlags;
+use serde::Serialize;
+
+/// The gel's strain is sampled every this many steps (≈ 1 ms for 7000 elements, outside the
+/// timed stages).
+pub const STRAIN_EVERY: usize = 10;
+
+/// Median and 99th percentile [ms].
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct Timing {
+    /// Median [ms].
+    pub median_ms: f64,
+    /// 99th percentile [ms].
+    pub p99_ms: f64,
+    /// Mean [ms] (with a factorisation pipeline of several steps, the steps alternate between
+    /// short ones and ones that wait for a factor: the mean is the throughput).
+    pub mean_ms: f64,
+}
+
+fn timing(mut v: Vec<f64>) -> Timing {
+    if v.is_empty() {
+        return Timing::default();
+    }
+    v.sort_by(f64::total_cmp);
+    let at = |p: f64| v[((p * (v.len() - 1) as f64).round() as usize).min(v.len() - 1)];
+    Timing {
+        median_ms: at(0.5),
+        p99_ms: at(0.99),
+        mean_ms: v.iter().sum::<f64>() / v.len() as f64,
+    }
+}
+
+/// Per-stage timing of a run.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct StageTiming {
+    /// Free motion.
+    pub fm: Timing,
+    /// Proximity.
+    pub cd: Timing,
+    /// Compliance.
+    pub cc: Timing,
+    /// Constraint solves (the core's inverse step: 8 solves).
+    pub sc: Timing,
+    /// Corrective motion and bookkeeping.
+    pub correction: Timing,
+    /// Whole step.
+    pub total: Timing,
+}
+
+/// Smallest clearance to one obstacle over the run.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Clearance {
+    /// Obstacle name.
+    pub name: String,
+    /// Smallest distance from the inserted needle to the deformed sphere (negative: hit) [mm].
+    pub min_mm: f64,
+}
+
+/// The summary of a run (also written as `summary.json`).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct RunSummary {
+    /// Scene name.
+    pub scene: String,
+    /// Controller.
+    pub controller: ControllerKind,
+    /// Gel nodes.
+    pub gel_nodes: usize,
+    /// Steps run.
+    pub steps: usize,
+    /// Steps planned.
+    pub steps_planned: usize,
+    /// Whether the run reached its last step.
+    pub completed: bool,
+    /// Why it stopped early.
+    pub stopped: Option<String>,
+    /// Step at which the tip punctured the surface.
+    pub puncture_step: Option<usize>,
+    /// Mean tracking error over the steps with the tip inside the gel [mm].
+    pub e_mean_mm: f64,
+    /// Largest tracking error inside the gel [mm].
+    pub e_max_mm: f64,
+    /// Tracking error at the last step [mm].
+    pub e_final_mm: f64,
+    /// Final insertion depth [mm].
+    pub final_depth_mm: f64,
+    /// Smallest clearance per obstacle.
+    pub clearances: Vec<Clearance>,
+    /// Whether any obstacle was hit.
+    pub obstacle_hit: bool,
+    /// Stage times.
+    pub timing: StageTiming,
+    /// Gauss-Seidel sweeps per step (all solves): mean.
+    pub gs_iterations_mean: f64,
+    /// Gauss-Seidel sweeps per step: largest.
+    pub gs_iterations_max: u32,
+    /// Steps in which a solve hit its iteration cap.
+    pub gs_not_converged_steps: usize,
+    /// Largest principal strain `|σ(F) − 1|` of any gel element, sampled every
+    /// [`STRAIN_EVERY`] steps and at the last [-].
+    pub max_strain: f64,
+    /// Most gel elements inverted (`det F ≤ 0`) at once, same sampling.
+    pub max_inverted_elements: usize,
+    /// Steps in which the controller reported the target unreachable (no joint update
+    /// improves the objective by 1 %).
+    pub unreachable_steps: usize,
+    /// Steps in which a joint stopped at its limit.
+    pub limit_steps: usize,
+    /// Gel factorisations finished on the background thread and used one step later (0 without
+    /// `solver.background_factorization`).
+    pub background_factorizations: u64,
+    /// Gel factorisations made at once in background mode (the first step, and steps whose
+    /// elements rotated more than `LAG_ROTATION_LIMIT` since the previous one).
+    pub immediate_factorizations: u64,
+    /// Times the host held the insertion because no command arrived within the transport's
+    /// deadline.
+    pub holds: usize,
+    /// Total time spent holding [ms].
+    pub held_ms: f64,
+}
+
+/// What the summary needs beyond the reports, gathered step by step: the smallest clearance
+/// per obstacle and the gel's strain (sampled every [`STRAIN_EVERY`] steps and at the last).
+pub struct Statistics {
+    min_clearance: Vec<f64>,
+    max_strain: f64,
+    max_inverted: usize,
+    last_step: usize,
+}
+
+impl Statistics {
+    /// For a run of `steps` steps of `world`.
+    pub fn new(world: &World, steps: usize) -> Self {
+        Self {
+            min_clearance: vec![f64::INFINITY; world.obstacles.len()],
+            max_strain: 0.0,
+            max_inverted: 0,
+            last_step: steps.saturating_sub(1),
+        }
+    }
+}
+
+impl Observer for Statistics {
+    fn step(&mut self, world: &World, r: &StepReport) -> Result<(), OutputError> {
+        for (m, c) in self.min_clearance.iter_mut().zip(world.clearances()) {
+            *m = m.min(c);
+        }
+        if (r.step + 1).is_multiple_of(STRAIN_EVERY) || r.step == self.last_step {
+            let st = world.gel.tetra().strain_stats(world.gel.positions());
+            self.max_strain = self.max_strain.max(st.max_strain);
+            self.max_inverted = self.max_inverted.max(st.inverted);
+        }
+        Ok(())
+    }
+}
+
+/// How a run ended, for its summary.
+pub struct Ending<'a> {
+    /// The run's controller.
+    pub controller: ControllerKind,
+    /// Steps planned.
+    pub steps_planned: usize,
+    /// Why it stopped early.
+    pub stopped: Option<String>,
+    /// Every step's report.
+    pub reports: &'a [StepReport],
+    /// Holds and time held [ms].
+    pub holds: (usize, f64),
+}
+
+/// Steps whose solver report carries `flag`.
+fn count_flag(reports: &[StepReport], flag: u32) -> usize {
+    reports
+        .iter()
+        .filter(|r| r.solver.flags & flag != 0)
+        .count()
+}
+
+/// The stage timing of `reports`.
+fn stage_timing(reports: &[StepReport]) -> StageTiming {
+    let times = |f: fn(&StepReport) -> f64| timing(reports.iter().map(f).collect());
+    StageTiming {
+        fm: times(|r| r.times.fm),
+        cd: times(|r| r.times.cd),
+        cc: times(|r| r.times.cc),
+        sc: times(|r| r.times.sc),
+        correction: times(|r| r.times.after_solve()),
+        total: times(|r| r.times.total()),
+    }
+}
+
+impl Statistics {
+    /// The summary of a run of `world` planned by `plan` that ended as `end` says.
+    pub fn summary(&self, plan: &Plan, world: &World, end: Ending<'_>) -> RunSummary {
+        let reports = end.reports;
+        let inside: Vec<&StepReport> = reports.iter().filter(|r| r.inserted).collect();
+        let e_mean = if inside.is_empty() {
+            f64::NAN
+        } else {
+            inside.iter().map(|r| r.error).sum::<f64>() / inside.len() as f64
+        };
+        let clearances: Vec<Clearance> = plan
+            .obstacle_names
+            .iter()
+            .zip(&self.min_clearance)
+            .map(|(name, m)| Clearance {
+                name: name.clone(),
+                min_mm: *m,
+            })
+            .collect();
+        let background = world.gel.background_counts().unwrap_or((0, 0));
+        RunSummary {
+            scene: plan.name.clone(),
+            controller: end.controller,
+            gel_nodes: world.gel.node_count(),
+            steps: reports.len(),
+            steps_planned: end.steps_planned,
+            completed: reports.len() == end.steps_planned && end.stopped.is_none(),
+            stopped: end.stopped,
+            puncture_step: reports.iter().find(|r| r.punctured_now).map(|r| r.step),
+            e_mean_mm: e_mean,
+            e_max_mm: inside.iter().map(|r| r.error).fold(f64::NAN, f64::max),
+            e_final_mm: reports.last().map_or(f64::NAN, |r| r.error),
+            final_depth_mm: reports.last().map_or(0.0, |r| r.depth),
+            obstacle_hit: clearances.iter().any(|c| c.min_mm < 0.0),
+            clearances,
+            timing: stage_timing(reports),
+            gs_iterations_mean: if reports.is_empty() {
+                0.0
+            } else {
+                reports
+                    .iter()
+                    .map(|r| f64::from(r.solver.iterations))
+                    .sum::<f64>()
+                    / reports.len() as f64
+            },
+            gs_iterations_max: reports
+                .iter()
+                .map(|r| r.solver.iterations)
+                .max()
+                .unwrap_or(0),
+            gs_not_converged_steps: count_flag(reports, StatusFlags::NOT_CONVERGED),
+            max_strain: self.max_strain,
+            max_inverted_elements: self.max_inverted,
+            unreachable_steps: count_flag(reports, StatusFlags::TARGET_UNREACHABLE),
+            limit_steps: count_flag(reports, StatusFlags::SATURATED_LIMIT),
+            background_factorizations: background.0,
+            immediate_factorizations: background.1,
+            holds: end.holds.0,
+            held_ms: end.holds.1,
+        }
+    }
+}

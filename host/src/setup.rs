@@ -1,0 +1,321 @@
+//! From a scene to what a run needs — the one reader of [`Scene`]: the [`World`] at its start
+//! (gel mesh and model, needle at the start pose, path, obstacles), the typed parameters of the
+//! step ([`StepParams`]), of the FE models ([`GelParams`], [`NeedleParams`]) and of the core
+//! ([`InverseParams`], with the robot), and the run's [`Plan`]. A parameter walks one way: scene
+//! file → [`Scene`] → here → typed parameters → step.
+
+use crate::error::{Body, SetupError};
+use crate::fem::Elasticity;
+use crate::fem::beam::BeamSection;
+use crate::fem::tetra::Kinematics;
+use crate::free_motion::{GelModel, GelParams, NeedleModel, NeedleParams};
+use crate::mesh::{TetMesh, box_mesh, read_gmsh};
+use crate::scene::{InsertionMode, Scene};
+use crate::step::{Insertion, Interaction, StepParams, TargetMotion};
+use crate::world::{World, WorldParts, node_frame_offset};
+use nalgebra::{Isometry3, Rotation3, Translation3, UnitQuaternion, Vector3};
+use needle_core::ik::{IkParams, solve_ik};
+use needle_core::inverse::InverseParams;
+use needle_core::kinematics::DhChain;
+use needle_core::payload::JOINTS;
+
+/// What a run of a scene plans, besides the simulation.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Plan {
+    /// Scene name.
+    pub name: String,
+    /// Obstacle labels (`obstacle k` when the scene gives none).
+    pub obstacle_names: Vec<String>,
+    /// Steps of the run: the scene's `insertion.steps`, else a whole insertion.
+    pub steps: usize,
+    /// Write VTK files every this many steps (0: never).
+    pub vtk_every: usize,
+}
+
+/// A scene, set up: the world at its start and every typed parameter.
+pub struct Setup {
+    /// The world at its start.
+    pub world: World,
+    /// The step's tuning.
+    pub params: StepParams,
+    /// The robot (as the core sees it).
+    pub robot: DhChain<JOINTS>,
+    /// The core's tuning.
+    pub inverse: InverseParams,
+    /// What a run plans.
+    pub plan: Plan,
+}
+
+impl Setup {
+    /// Sets `scene` up: gel at rest, needle straight at the start pose.
+    ///
+    /// # Errors
+    /// [`SetupError`]: an invalid mesh, an unreachable start, a path or obstacle outside the gel,
+    /// a model that cannot be built.
+    ///
+    /// # Example
+    /// ```
+    /// use needle_host::{scene::Scene, setup::Setup};
+    ///
+    /// let scene = Scene::builtin("simple").unwrap()
+    ///     .with_overrides(&[("gel.box.nodes".into(), "300".into())]).unwrap();
+    /// let s = Setup::build(&scene).unwrap();
+    /// assert_eq!(s.plan.steps, 609); // 60.9 mm of path at 0.1 mm per step
+    /// assert!(!s.world.punctured && s.world.gel.node_count() < 400);
+    /// assert_eq!(s.params.interaction.puncture_force, scene.interaction.puncture_force);
+    /// ```
+    pub fn build(scene: &Scene) -> Result<Self, SetupError> {
+        let path = scene.sampled_path().map_err(SetupError::Path)?;
+        let mesh = gel_mesh(scene)?;
+        let fixed = fixed_nodes(scene, &mesh)?;
+        let gel = GelModel::try_new(mesh, &fixed, &gel_params(scene)).map_err(|source| {
+            SetupError::Model {
+                body: Body::Gel,
+                source,
+            }
+        })?;
+        let q = start_joints(scene)?;
+        let robot = scene.robot();
+        let needle = start_needle(scene, &robot, &q)?;
+        let obstacles = scene
+            .obstacles
+            .iter()
+            .map(|o| (Vector3::from(o.center), o.radius))
+            .collect();
+        let world = World::try_new(WorldParts {
+            robot,
+            gel,
+            needle,
+            needle_length: scene.needle.length,
+            path,
+            obstacles,
+            q,
+        })?;
+        Ok(Self {
+            world,
+            params: step_params(scene),
+            robot,
+            inverse: scene.inverse_params(),
+            plan: plan(scene),
+        })
+    }
+}
+
+/// The robot and the core's tuning of `scene` (what `needle-controller` needs).
+pub fn core(scene: &Scene) -> (DhChain<JOINTS>, InverseParams) {
+    (scene.robot(), scene.inverse_params())
+}
+
+/// The step's tuning of `scene`.
+pub fn step_params(scene: &Scene) -> StepParams {
+    let i = &scene.interaction;
+    StepParams {
+        interaction: Interaction {
+            puncture_force: i.puncture_force,
+            surface_friction: i.surface_friction,
+            shaft_friction: i.shaft_friction,
+            shaft_resistance: i.shaft_resistance,
+            constraint_spacing: i.constraint_spacing,
+        },
+        insertion: Insertion {
+            advance_per_step: scene.insertion.advance_per_step,
+            motion: match scene.insertion.mode {
+                InsertionMode::Insert => TargetMotion::Insert,
+                InsertionMode::BackAndForth => TargetMotion::BackAndForth,
+            },
+        },
+        dt: scene.robot.dt,
+    }
+}
+
+/// The gel model's parameters of `scene`.
+pub fn gel_params(scene: &Scene) -> GelParams {
+    GelParams {
+        elasticity: Elasticity {
+            young_modulus: scene.gel.young_modulus,
+            poisson_ratio: scene.gel.poisson_ratio,
+        },
+        density: scene.gel.density,
+        time_step: Some(scene.solver.time_step),
+        kinematics: Kinematics::Corotational,
+        refactor_every: scene.solver.refactor_every() as usize,
+        background_factorization: scene.solver.background_factorization,
+    }
+}
+
+/// The needle model's parameters of `scene`.
+pub fn needle_params(scene: &Scene) -> NeedleParams {
+    let n = &scene.needle;
+    NeedleParams {
+        section: BeamSection {
+            elasticity: Elasticity {
+                young_modulus: n.young_modulus,
+                poisson_ratio: n.poisson_ratio,
+            },
+            outer_diameter: n.diameter,
+            inner_diameter: 0.0,
+            density: n.density,
+        },
+        time_step: Some(scene.solver.time_step),
+        refactor_every: 1,
+    }
+}
+
+/// Steps a scene plans: its `insertion.steps`, else a whole insertion (to the end of the path,
+/// or there and back).
+pub fn planned_steps(scene: &Scene) -> usize {
+    scene.insertion.steps.unwrap_or_else(|| {
+        let total = scene
+            .sampled_path()
+            .map(|p| p.total_length())
+            .unwrap_or(0.0);
+        step_params(scene).insertion.default_steps(total)
+    })
+}
+
+fn plan(scene: &Scene) -> Plan {
+    Plan {
+        name: scene.name.clone(),
+        obstacle_names: scene
+            .obstacles
+            .iter()
+            .enumerate()
+            .map(|(k, o)| {
+                if o.name.is_empty() {
+                    format!("obstacle {k}")
+                } else {
+                    o.name.clone()
+                }
+            })
+            .collect(),
+        steps: planned_steps(scene),
+        vtk_every: scene.output.vtk_every,
+    }
+}
+
+/// The gel mesh of a scene (generated box or Gmsh file), validated.
+///
+/// # Errors
+/// [`SetupError::MeshFile`] naming the file, [`SetupError::Mesh`], [`SetupError::NoMesh`].
+pub fn gel_mesh(scene: &Scene) -> Result<TetMesh, SetupError> {
+    let mesh = match (&scene.gel.box_mesh, &scene.gel.mesh) {
+        (_, Some(path)) => read_gmsh(path).map_err(|source| SetupError::MeshFile {
+            file: path.clone(),
+            source,
+        })?,
+        (Some(b), None) => box_mesh(Vector3::from(b.min), Vector3::from(b.max), b.nodes),
+        (None, None) => return Err(SetupError::NoMesh),
+    };
+    mesh.validate().map_err(SetupError::Mesh)?;
+    Ok(mesh)
+}
+
+/// The fixed gel nodes of a scene: below `fixed.below_z` and the listed ones.
+///
+/// # Errors
+/// [`SetupError::FixedNodeMissing`], [`SetupError::NothingFixed`].
+pub fn fixed_nodes(scene: &Scene, mesh: &TetMesh) -> Result<Vec<usize>, SetupError> {
+    let mut fixed: Vec<usize> = match scene.gel.fixed.below_z {
+        Some(z) => {
+            let tol = 1e-9 * (1.0 + z.abs());
+            (0..mesh.nodes.len())
+                .filter(|&i| mesh.nodes[i].z <= z + tol)
+                .collect()
+        }
+        None => Vec::new(),
+    };
+    for &node in &scene.gel.fixed.nodes {
+        if node >= mesh.nodes.len() {
+            return Err(SetupError::FixedNodeMissing {
+                node,
+                nodes: mesh.nodes.len(),
+            });
+        }
+        fixed.push(node);
+    }
+    fixed.sort_unstable();
+    fixed.dedup();
+    if fixed.is_empty() {
+        return Err(SetupError::NothingFixed);
+    }
+    Ok(fixed)
+}
+
+/// The starting joints: the scene's `robot.start_joints_deg` when given, else the needle straight
+/// along the path's entry tangent, its tip `approach` before the entry point (damped
+/// least-squares IK from mid-range).
+///
+/// # Errors
+/// [`SetupError::StartPose`], [`SetupError::StartOutOfReach`], [`SetupError::Path`].
+pub fn start_joints(scene: &Scene) -> Result<[f64; JOINTS], SetupError> {
+    if let Some(q) = &scene.robot.start_joints_deg {
+        let mut out = [0.0; JOINTS];
+        for (o, v) in out.iter_mut().zip(q) {
+            *o = v.to_radians();
+        }
+        return Ok(out);
+    }
+    let chain = scene.robot();
+    let path = scene.sampled_path().map_err(SetupError::Path)?;
+    let t = path.entry_tangent();
+    let base = path.start_tip() - scene.needle.length * t;
+    let rep = solve_ik(
+        &chain,
+        [base.x, base.y, base.z],
+        [t.x, t.y, t.z],
+        &chain.mid_range(),
+        &IkParams::default(),
+    )
+    .map_err(SetupError::StartPose)?;
+    // The benchmark pose is at the wrist singularity (needle vertical, J5 ≈ 0), where the damped
+    // IK creeps: accept a start within 1 µm and 0.1 mrad.
+    if !(rep.position_error <= 1e-3 && rep.angle_error <= 1e-4) {
+        return Err(SetupError::StartOutOfReach {
+            base,
+            axis: t,
+            position_error: rep.position_error,
+            angle_error: rep.angle_error,
+        });
+    }
+    Ok(rep.q)
+}
+
+/// The needle of `scene` straight at the pose `B(q)` of the robot, free-floating (held by the
+/// base constraint only), with the material stiffness only (see
+/// `CorotationalBeams::set_geometric_stiffness`).
+fn start_needle(
+    scene: &Scene,
+    robot: &DhChain<JOINTS>,
+    q: &[f64; JOINTS],
+) -> Result<NeedleModel, SetupError> {
+    let b = robot.tool_pose(q);
+    let r_node = b.rotation * node_frame_offset(&Vector3::x());
+    let iso = Isometry3::from_parts(
+        Translation3::from(b.translation),
+        UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(r_node)),
+    );
+    let n = &scene.needle;
+    let mut needle = NeedleModel::straight(&iso, n.length, n.beams, &[], &needle_params(scene))
+        .map_err(|source| SetupError::Model {
+            body: Body::Needle,
+            source,
+        })?;
+    needle.set_geometric_stiffness(false);
+    Ok(needle)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A scene that sets nothing gets the typed parameters' own defaults.
+    #[test]
+    fn a_scene_with_defaults_gives_the_default_step_params() {
+        let s = Scene::from_toml_str(
+            "name = \"d\"\n[path]\npoints = [[300.0, 0.0, 60.0], [300.0, 0.0, 20.0]]\n",
+            "d.toml",
+        )
+        .expect("scene");
+        assert_eq!(step_params(&s), StepParams::default());
+    }
+}

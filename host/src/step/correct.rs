@@ -1,0 +1,85 @@
+//! Stage 5, the corrective motion (SOFA's `computeMotionCorrectionFromLambda`):
+//!
+//! ```text
+//! x = x_free + K⁻¹ Hᵀ λ,      K⁻¹ Hᵀ λ = Σ_h Σ_{b∈h} s_b U_b D_bᵀ λ_h
+//! ```
+//!
+//! with the Cartesian columns `U_b = K⁻¹ P_bᵀ` of each attachment `b` (the compliance stage
+//! computed them), its directions `D_b` and side `s_b` (+1 needle, −1 gel). No solve.
+
+use crate::constraints::{ConstraintSet, GroupRole, Model};
+use crate::error::{NonFiniteAt, SimError};
+use crate::world::World;
+use nalgebra::Vector3;
+
+/// The row forces `λ` of each attachment of group `h` (its own rows, up to three).
+fn attachment_lambda(lambda: &[f64], start: usize, row_offset: usize, rows: usize) -> Vector3<f64> {
+    let mut l = Vector3::zeros();
+    for r in 0..rows {
+        l[r] = lambda[start + row_offset + r];
+    }
+    l
+}
+
+/// Adds the corrective motion `K⁻¹ Hᵀ λ` of each model to `needle_dx` and `gel_dx`.
+pub fn add_correction(
+    set: &ConstraintSet,
+    lambda: &[f64],
+    needle_dx: &mut [f64],
+    gel_dx: &mut [f64],
+) {
+    for (h, start) in set.groups.iter().zip(set.starts()) {
+        for b in &h.attachments {
+            let l = attachment_lambda(lambda, start, b.row_offset, b.rows);
+            let f = b.sign * b.d.transpose() * l;
+            let (store, out) = match b.model {
+                Model::Needle => (&set.needle, &mut *needle_dx),
+                Model::Gel => (&set.gel, &mut *gel_dx),
+            };
+            store.cols(b.point).add_response(&f, out);
+        }
+    }
+}
+
+/// Moves both bodies to `x_free + K⁻¹ Hᵀ λ`: adds the correction to the free motions
+/// `needle_dx`, `gel_dx` and applies them.
+///
+/// # Errors
+/// [`SimError::NonFinite`] when a position is not finite afterwards.
+pub fn apply(
+    world: &mut World,
+    set: &ConstraintSet,
+    lambda: &[f64],
+    needle_dx: &mut [f64],
+    gel_dx: &mut [f64],
+) -> Result<(), SimError> {
+    add_correction(set, lambda, needle_dx, gel_dx);
+    // Finite (the command was checked) and of the models' own lengths: cannot fail.
+    let _ = world.needle.apply_displacement(needle_dx);
+    let _ = world.gel.apply_displacement(gel_dx);
+    let finite = world
+        .needle
+        .positions()
+        .iter()
+        .chain(world.gel.positions())
+        .all(|p| p.iter().all(|v| v.is_finite()));
+    if finite {
+        Ok(())
+    } else {
+        Err(SimError::NonFinite(NonFiniteAt::Correction))
+    }
+}
+
+/// The force each row group applies to the needle, world frame [N] (the gel receives the
+/// opposite of every contact and sliding force); for the base group, its translational rows.
+pub fn needle_forces(set: &ConstraintSet, lambda: &[f64]) -> Vec<(GroupRole, Vector3<f64>)> {
+    set.groups
+        .iter()
+        .zip(set.starts())
+        .map(|(g, start)| {
+            let a = &g.attachments[0];
+            let l = attachment_lambda(lambda, start, a.row_offset, a.rows.min(3));
+            (g.role, a.sign * a.d.transpose() * l)
+        })
+        .collect()
+}

@@ -1,0 +1,399 @@
+//! One step of the simulation (the paper's Algorithm 1), read top to bottom in
+//! [`Pipeline::step`]:
+//!
+//! 1. **free motion (FM)** — one quasi-static Newton step of each body without constraints:
+//!    `Δx_free = K⁻¹ b` for the gel and the needle ([`crate::free_motion`]);
+//! 2. **proximity (CD)** — the row groups of this step ([`rows`]): the needle base χ (6
+//!    bilateral rows), the sliding points ψ after puncture (2 lateral bilateral rows + 1 axial
+//!    friction row each), the tip on the gel surface φ before puncture (contact with Coulomb
+//!    friction), with their violations `δ_free`;
+//! 3. **compliance (CC)** — `W = H K⁻¹ Hᵀ` and the observation rows `C`, `o_free`
+//!    ([`crate::compliance`], [`observe`]), gel columns cached while the factor is reused; the
+//!    frame for the core;
+//! 4. **constraint solve (SC)** — through a [`Transport`]: the core's inverse step (8
+//!    Gauss-Seidel solves: new joints `q` and the final `λ`), in this process or another, or a
+//!    single solve at given joints ([`crate::open_loop::OpenLoop`]);
+//! 5. **corrective motion** — `x = x_free + K⁻¹ Hᵀ λ` ([`correct`]);
+//! 6. **interaction bookkeeping** ([`interact`]) — puncture when the contact's normal force
+//!    reaches `p_f` (once: the contact group gives way to a sliding point at the entry), a new
+//!    sliding point each time the tip has advanced `d_n` past the last one, sliding points
+//!    released when the needle is withdrawn past them.
+//!
+//! Each stage is timed ([`StageTimes`]). The [`Pipeline`] owns the scratch of a step (the frame,
+//! the command, the rows, the free-motion vectors, the cached compliance columns); the state is
+//! the [`World`]'s; the tuning is one [`StepParams`].
+
+pub mod correct;
+pub mod interact;
+pub mod observe;
+mod params;
+pub mod rows;
+
+pub use params::{Insertion, Interaction, StepParams, TargetMotion};
+
+use crate::boxed;
+use crate::compliance::PointColumns;
+use crate::constraints::{ConstraintSet, GroupRole};
+use crate::error::{Body, CommandMismatch, NonFiniteAt, SimError};
+use crate::proximity::Embedded;
+use crate::world::World;
+use nalgebra::Vector3;
+use needle_bridge::Transport;
+use needle_core::payload::{Command, ComplianceFrame, JOINTS, SolverReport, VERSION};
+use std::time::Instant;
+
+/// Row capacity of the frames a pipeline builds: 6 base rows + 3 contact rows + 3 rows for each
+/// of up to 61 sliding points (50 mm of insertion at d_n ≥ 0.85 mm).
+pub const ROWS: usize = 192;
+
+/// Per-stage wall times of one step [ms].
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct StageTimes {
+    /// 1. Free motion (both bodies).
+    pub fm: f64,
+    /// 2. Proximity and row construction.
+    pub cd: f64,
+    /// 3. Compliance and frame.
+    pub cc: f64,
+    /// 4. Constraint solves: the transport's round trip (in process: the core's whole step).
+    pub sc: f64,
+    /// 5. Corrective motion.
+    pub corr: f64,
+    /// 6. Interaction bookkeeping (puncture, sliding points).
+    pub interact: f64,
+}
+
+impl StageTimes {
+    /// Sum of the stages [ms].
+    pub fn total(&self) -> f64 {
+        self.fm + self.cd + self.cc + self.sc + self.corr + self.interact
+    }
+
+    /// Stages 5 and 6 together [ms] (the `corr` column of the outputs).
+    pub fn after_solve(&self) -> f64 {
+        self.corr + self.interact
+    }
+}
+
+/// What one step did.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct StepReport {
+    /// Step index (0-based).
+    pub step: usize,
+    /// Target's arc length from the start tip [mm].
+    pub c: f64,
+    /// Tip after the step [mm].
+    pub tip: Vector3<f64>,
+    /// Target point after the step (moves with the gel) [mm].
+    pub target: Vector3<f64>,
+    /// `|tip − target|` [mm].
+    pub error: f64,
+    /// Whether the tip has punctured the surface.
+    pub inserted: bool,
+    /// Tip distance past the entry point [mm].
+    pub depth: f64,
+    /// Constraint rows.
+    pub rows: usize,
+    /// Sliding points.
+    pub sliding_points: usize,
+    /// The puncture happened during this step.
+    pub punctured_now: bool,
+    /// Normal force of the tip contact [N] (0 without contact).
+    pub contact_force: f64,
+    /// Norms of λ per role: base, contact, sliding [N or N·mm].
+    pub lambda_norms: [f64; 3],
+    /// The core's report.
+    pub solver: SolverReport,
+    /// Largest constraint violation after the step over the non-base bilateral rows [mm].
+    pub residual: f64,
+    /// Joints after the step [rad].
+    pub q: [f64; JOINTS],
+    /// Stage times [ms].
+    pub times: StageTimes,
+}
+
+/// Positions after free motion: `x + Δx_free` of every node [mm].
+#[derive(Clone, Debug, Default)]
+pub struct FreePositions {
+    /// Gel nodes (fixed ones where they are).
+    pub gel: Vec<Vector3<f64>>,
+    /// Needle nodes.
+    pub needle: Vec<Vector3<f64>>,
+}
+
+impl FreePositions {
+    /// The free-motion position of a gel point [mm].
+    pub fn gel_point(&self, world: &World, e: &Embedded) -> Vector3<f64> {
+        e.position(&self.gel, &world.gel.mesh().tets)
+    }
+}
+
+/// The scratch of a step, sized once for a world: the frame and the command, the rows, the
+/// free-motion and correction vectors, and the gel compliance columns of the sliding points
+/// (valid while the gel's factor is reused).
+pub struct Pipeline {
+    frame: Box<ComplianceFrame<ROWS>>,
+    command: Box<Command<ROWS>>,
+    set: ConstraintSet,
+    gel_dx: Vec<f64>,
+    needle_dx: Vec<f64>,
+    free: FreePositions,
+    /// Gel columns of sliding points by id, kept from one step to the next.
+    columns: Vec<(usize, PointColumns)>,
+    /// The stage times of the last step.
+    pub times: StageTimes,
+}
+
+/// Milliseconds since `t`, and restarts `t`.
+fn lap(t: &mut Instant) -> f64 {
+    let now = Instant::now();
+    let ms = (now - *t).as_secs_f64() * 1e3;
+    *t = now;
+    ms
+}
+
+impl Pipeline {
+    /// Scratch for `world`'s bodies.
+    pub fn new(world: &World) -> Self {
+        Self {
+            frame: boxed::frame(),
+            command: boxed::command(),
+            set: ConstraintSet::default(),
+            gel_dx: vec![0.0; world.gel.dof_count()],
+            needle_dx: vec![0.0; world.needle.dof_count()],
+            free: FreePositions {
+                gel: vec![Vector3::zeros(); world.gel.node_count()],
+                needle: vec![Vector3::zeros(); world.needle.node_count()],
+            },
+            columns: Vec::new(),
+            times: StageTimes::default(),
+        }
+    }
+
+    /// One step of `world` (Algorithm 1, see the module docs), the constraint solve through
+    /// `transport`. The target moves to `params.insertion.target_arc(path length, step)`.
+    ///
+    /// # Errors
+    /// [`SimError`]: a failed factorisation or solve, a capacity overflow, an invalid frame, a
+    /// transport failure or a command that does not answer the frame, a non-finite state.
+    ///
+    /// # Example
+    /// ```
+    /// use needle_bridge::InProcess;
+    /// use needle_host::{scene::Scene, setup::Setup, step::Pipeline};
+    ///
+    /// let scene = Scene::builtin("simple").unwrap()
+    ///     .with_overrides(&[("gel.box.nodes".into(), "300".into())]).unwrap();
+    /// let s = Setup::build(&scene).unwrap();
+    /// let (mut world, params) = (s.world, s.params);
+    /// let mut core = InProcess::new(s.robot, s.inverse);
+    /// let mut pipeline = Pipeline::new(&world);
+    /// for k in 0..3 {
+    ///     let r = pipeline.step(&mut world, &params, &mut core).unwrap();
+    ///     assert_eq!((r.step, r.rows), (k, 6)); // in the air: the base rows only
+    ///     assert!(r.error < 0.1);
+    /// }
+    /// assert!((world.c - 0.3).abs() < 1e-12);
+    /// ```
+    pub fn step(
+        &mut self,
+        world: &mut World,
+        params: &StepParams,
+        transport: &mut dyn Transport<ROWS>,
+    ) -> Result<StepReport, SimError> {
+        let c = params
+            .insertion
+            .target_arc(world.path.total_length(), world.steps);
+        let mut times = StageTimes::default();
+        let mut t = Instant::now();
+
+        // 1. Free motion.
+        self.free_motion(world)?;
+        times.fm = lap(&mut t);
+
+        // 2. Proximity: the row groups χ, ψ, φ.
+        rows::build(
+            &mut self.set,
+            world,
+            &self.free,
+            &params.interaction,
+            &mut self.columns,
+        );
+        let rows = self.set.rows();
+        if rows > ROWS {
+            return Err(SimError::Capacity {
+                rows,
+                capacity: ROWS,
+            });
+        }
+        times.cd = lap(&mut t);
+
+        // 3. Compliance and the frame.
+        self.compliance(world, c, params)?;
+        times.cc = lap(&mut t);
+
+        // 4. Constraint solve: the frame to the core, the command back.
+        let exchange = transport
+            .exchange(&self.frame, &mut self.command)
+            .map_err(SimError::Transport)?;
+        check_command(&self.frame, &self.command)?;
+        times.sc = exchange.round_trip.as_secs_f64() * 1e3;
+        t = Instant::now();
+
+        // 5. Corrective motion.
+        let lambda = &self.command.lambda[..rows];
+        correct::apply(
+            world,
+            &self.set,
+            lambda,
+            &mut self.needle_dx,
+            &mut self.gel_dx,
+        )?;
+        world.q = self.command.q;
+        world.c = c;
+        times.corr = lap(&mut t);
+
+        // 6. Interaction bookkeeping.
+        let forces = interact::forces(&self.set, lambda);
+        interact::keep_columns(&mut self.set, &mut self.columns);
+        let punctured_now = interact::update(world, forces.contact, &params.interaction)?;
+        times.interact = lap(&mut t);
+
+        self.times = times;
+        let report = self.report(world, c, forces, punctured_now);
+        world.steps += 1;
+        Ok(report)
+    }
+
+    /// Stage 1: `Δx_free` of both bodies, the free positions, and the cached gel columns dropped
+    /// when the gel's factor was renewed.
+    fn free_motion(&mut self, world: &mut World) -> Result<(), SimError> {
+        let gel_dx = world.gel.free_motion_unloaded();
+        self.gel_dx
+            .copy_from_slice(gel_dx.map_err(SimError::in_free_motion(Body::Gel))?);
+        let needle_dx = world.needle.free_motion_unloaded();
+        self.needle_dx
+            .copy_from_slice(needle_dx.map_err(SimError::in_free_motion(Body::Needle))?);
+        if world.gel.factor_age() == Some(0) {
+            self.columns.clear();
+        }
+        for (i, x) in world.gel.positions().iter().enumerate() {
+            self.free.gel[i] = match world.gel.node_dof(i) {
+                Some(d) => x + Vector3::new(self.gel_dx[d], self.gel_dx[d + 1], self.gel_dx[d + 2]),
+                None => *x,
+            };
+        }
+        for (i, x) in world.needle.positions().iter().enumerate() {
+            let d = &self.needle_dx[6 * i..6 * i + 3];
+            self.free.needle[i] = x + Vector3::new(d[0], d[1], d[2]);
+        }
+        if !self
+            .gel_dx
+            .iter()
+            .chain(&self.needle_dx)
+            .all(|v| v.is_finite())
+        {
+            return Err(SimError::NonFinite(NonFiniteAt::FreeMotion));
+        }
+        Ok(())
+    }
+
+    /// Stage 3: the Cartesian columns `K⁻¹ Pᵀ` of every constrained point (cached gel ones
+    /// kept), then `W`, `δ_free`, `C`, `o_free` and the header of the frame.
+    fn compliance(
+        &mut self,
+        world: &mut World,
+        c: f64,
+        params: &StepParams,
+    ) -> Result<(), SimError> {
+        let (nn, ng) = (world.needle.dof_count(), world.gel.dof_count());
+        let needle = &mut world.needle;
+        self.set
+            .needle
+            .compute_missing(nn, |r, k| needle.solve_columns(r, k))
+            .map_err(SimError::in_compliance(Body::Needle))?;
+        let gel = &mut world.gel;
+        self.set
+            .gel
+            .compute_missing(ng, |r, k| gel.solve_columns(r, k))
+            .map_err(SimError::in_compliance(Body::Gel))?;
+        let observations = observe::observations(world, &self.free, c);
+        self.set.fill_frame(&observations, &mut self.frame);
+        observe::fill_header(
+            &mut self.frame,
+            world,
+            &self.needle_dx,
+            &self.free,
+            params.dt,
+        )
+        .map_err(SimError::InvalidFrame)
+    }
+
+    /// The report of a finished step.
+    fn report(
+        &self,
+        world: &World,
+        c: f64,
+        forces: interact::Forces,
+        punctured_now: bool,
+    ) -> StepReport {
+        let tip = world.tip();
+        let target = world.target(c);
+        StepReport {
+            step: world.steps,
+            c,
+            tip,
+            target,
+            error: (tip - target).norm(),
+            inserted: world.punctured,
+            depth: world.depth(),
+            rows: self.set.rows(),
+            sliding_points: world.sliding.len(),
+            punctured_now,
+            contact_force: forces.contact,
+            lambda_norms: forces.norms,
+            solver: self.command.report,
+            residual: world.sliding_residual(),
+            q: world.q,
+            times: self.times,
+        }
+    }
+
+    /// The last frame handed to the core (diagnostics, transports).
+    pub fn frame(&self) -> &ComplianceFrame<ROWS> {
+        &self.frame
+    }
+
+    /// The last command received from the core.
+    pub fn command(&self) -> &Command<ROWS> {
+        &self.command
+    }
+
+    /// The force each row group of the last step applies to the needle, world frame [N] (the
+    /// gel receives the opposite of every contact and sliding force); for the base group, its
+    /// translational rows.
+    pub fn needle_forces(&self) -> Vec<(GroupRole, Vector3<f64>)> {
+        correct::needle_forces(&self.set, &self.command.lambda[..self.set.rows()])
+    }
+}
+
+/// Checks that `cmd` answers `frame`: version, sequence, row count, finite values.
+fn check_command(frame: &ComplianceFrame<ROWS>, cmd: &Command<ROWS>) -> Result<(), SimError> {
+    let why = if cmd.version != VERSION {
+        Some(CommandMismatch::Version)
+    } else if cmd.frame_sequence != frame.sequence {
+        Some(CommandMismatch::Sequence)
+    } else if cmd.m != frame.m {
+        Some(CommandMismatch::RowCount)
+    } else if !cmd
+        .q
+        .iter()
+        .chain(&cmd.lambda[..frame.rows()])
+        .all(|v| v.is_finite())
+    {
+        Some(CommandMismatch::NonFinite)
+    } else {
+        None
+    };
+    why.map_or(Ok(()), |w| Err(SimError::Command(w)))
+}

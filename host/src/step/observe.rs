@@ -1,0 +1,134 @@
+//! Stage 3, the observations of the frame and its header: what the core's objective looks at —
+//! tip, tip direction, target point and tangent, entry point — each `o = o_free + C λ` (laid out
+//! by `needle_core::payload::ObsIndex`), and the needle base after free motion, the joints, the
+//! insertion depth and the sequence.
+
+use super::{FreePositions, ROWS};
+use crate::compliance::PointMap;
+use crate::constraints::{Model, Observation};
+use crate::step::rows::gel_map;
+use crate::world::World;
+use nalgebra::{Matrix3, Rotation3, Vector3};
+use needle_core::inverse::base_violation;
+use needle_core::payload::{ComplianceFrame, ValidationError};
+
+/// Arc length between the target and the second point that defines the target tangent [mm].
+const TANGENT_STEP: f64 = 1.0;
+
+/// The five observations of the frame (tip, tip direction, target, target tangent, entry) for
+/// the target at arc length `c`.
+pub fn observations(world: &World, free: &FreePositions, c: f64) -> [Observation; 5] {
+    let nodes = world.needle.positions();
+    let n_last = nodes.len() - 1;
+    let eye = Matrix3::identity();
+    let tip = Observation {
+        model: Model::Needle,
+        map: PointMap::single(6 * n_last),
+        a: eye,
+        free: free.needle[n_last],
+    };
+    // Tip direction from the last segment: linear in the two nodes (the core normalises).
+    let len = (nodes[n_last] - nodes[n_last - 1])
+        .norm()
+        .max(f64::MIN_POSITIVE);
+    let dir = Observation {
+        model: Model::Needle,
+        map: PointMap::weighted([
+            (Some(6 * n_last), 1.0 / len),
+            (Some(6 * (n_last - 1)), -1.0 / len),
+        ]),
+        a: eye,
+        free: (free.needle[n_last] - free.needle[n_last - 1]) / len,
+    };
+    let (target, tangent) = target_observations(world, free, c);
+    let entry = gel_observation(
+        gel_map(world, &world.entry),
+        free.gel_point(world, &world.entry),
+    );
+    [tip, dir, target, tangent, entry]
+}
+
+/// An observed gel point or direction.
+fn gel_observation(map: PointMap, free: Vector3<f64>) -> Observation {
+    Observation {
+        model: Model::Gel,
+        map,
+        a: Matrix3::identity(),
+        free,
+    }
+}
+
+/// The target point and tangent: embedded in the gel (the tangent as the difference quotient
+/// over [`TANGENT_STEP`]) once both are inside it, else the rest path's, fixed in the world.
+fn target_observations(world: &World, free: &FreePositions, c: f64) -> (Observation, Observation) {
+    let fixed = PointMap::weighted([]);
+    match (
+        world.target_embedding(c),
+        world.target_embedding(c + TANGENT_STEP),
+    ) {
+        (Some(a), Some(b)) => {
+            let (ma, mb) = (gel_map(world, &a), gel_map(world, &b));
+            let inv = 1.0 / TANGENT_STEP;
+            let map = PointMap::weighted(
+                ma.used()
+                    .iter()
+                    .map(|&(d, w)| (Some(d), w * -inv))
+                    .chain(mb.used().iter().map(|&(d, w)| (Some(d), w * inv))),
+            );
+            let (pa, pb) = (free.gel_point(world, &a), free.gel_point(world, &b));
+            (
+                gel_observation(ma, pa),
+                gel_observation(map, (pb - pa) * inv),
+            )
+        }
+        (a, _) => {
+            let (p, t) = world.path.at(c);
+            let target = match a {
+                Some(a) => gel_observation(gel_map(world, &a), free.gel_point(world, &a)),
+                None => gel_observation(fixed, p),
+            };
+            (target, gel_observation(fixed, t))
+        }
+    }
+}
+
+/// Rotation exp([θ]×).
+fn exp_so3(theta: &Vector3<f64>) -> Matrix3<f64> {
+    Rotation3::new(*theta).into_inner()
+}
+
+/// Header fields of the frame: the needle base after free motion (from `needle_dx`, the free
+/// motion), its violation of `B(q)`, the joints, the control period `dt` [s], the insertion
+/// state and the sequence; then validates the whole frame.
+///
+/// # Errors
+/// The frame's [`ValidationError`].
+pub fn fill_header(
+    f: &mut ComplianceFrame<ROWS>,
+    world: &World,
+    needle_dx: &[f64],
+    free: &FreePositions,
+    dt: f64,
+) -> Result<(), ValidationError> {
+    let p0 = free.needle[0];
+    let r0 =
+        exp_so3(&Vector3::new(needle_dx[3], needle_dx[4], needle_dx[5])) * world.needle.rotation(0);
+    // The frame carries the needle base as a B-frame orientation: R_B = R_node · r_offᵀ.
+    let rb = r0 * world.r_off.transpose();
+    f.p_free = [p0.x, p0.y, p0.z];
+    for i in 0..3 {
+        for j in 0..3 {
+            f.r_free[i][j] = rb[(i, j)];
+        }
+    }
+    let base = world.base_pose(&world.q);
+    let d = base_violation(&base, &f.p_free, &f.r_free);
+    f.delta_free[..6].copy_from_slice(&d);
+    f.q = world.q;
+    f.dt = dt;
+    f.inserted = u32::from(world.punctured);
+    f.insertion_depth = world.depth();
+    f.sequence = world.steps as u64;
+    f.version = needle_core::payload::VERSION;
+    f.validate()
+}
