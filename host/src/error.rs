@@ -2,6 +2,9 @@
 //! carrying the error underneath as its `source()` (the FE layer's [`FemError`], the mesh's,
 //! the transport's). [`chain`] writes an error with its sources, as the CLI prints it.
 
+// Units are written in brackets ([mm], [N]) as in the workspace style: not intra-doc links.
+#![allow(rustdoc::broken_intra_doc_links)]
+
 use crate::fem::FemError;
 use crate::mesh::{GmshError, MeshError};
 use crate::scene::PathError;

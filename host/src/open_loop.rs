@@ -2,6 +2,9 @@
 //! joints ([`Controller::solve_open_loop`]) instead of the inverse update — the naive baseline's
 //! replay of a precomputed trajectory, and forward simulations driven by hand.
 
+// Units are written in brackets ([mm], [N]) as in the workspace style: not intra-doc links.
+#![allow(rustdoc::broken_intra_doc_links)]
+
 use crate::boxed;
 use crate::step::ROWS;
 use needle_bridge::{ExchangeReport, Transport, TransportError};

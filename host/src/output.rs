@@ -6,6 +6,9 @@
 //! scalar: glyph them with spheres), `constraints_NNNNN.vtk` (sliding/contact points with a
 //! `kind` scalar). The CSV holds one row per step (see [`StepMetrics`]).
 
+// Units are written in brackets ([mm], [N]) as in the workspace style: not intra-doc links.
+#![allow(rustdoc::broken_intra_doc_links)]
+
 use nalgebra::Vector3;
 use std::fs::File;
 use std::path::{Path, PathBuf};

@@ -4,6 +4,9 @@
 //! ([`InverseParams`], with the robot), and the run's [`Plan`]. A parameter walks one way: scene
 //! file → [`Scene`] → here → typed parameters → step.
 
+// Units are written in brackets ([mm], [N]) as in the workspace style: not intra-doc links.
+#![allow(rustdoc::broken_intra_doc_links)]
+
 use crate::error::{Body, SetupError};
 use crate::fem::Elasticity;
 use crate::fem::beam::BeamSection;

@@ -3,6 +3,9 @@
 //! (punctured, sliding points, joints, target). State only: the step lives in [`crate::step`],
 //! its tuning in [`crate::step::StepParams`], its scratch in [`crate::step::Pipeline`].
 
+// Units are written in brackets ([mm], [N]) as in the workspace style: not intra-doc links.
+#![allow(rustdoc::broken_intra_doc_links)]
+
 use crate::error::SetupError;
 use crate::free_motion::{GelModel, NeedleModel};
 use crate::proximity::{Embedded, TetLocator};

@@ -17,6 +17,9 @@
 //! The observers: [`summary::Statistics`] (clearances, strain) for the summary, and the files
 //! ([`outputs`]: `steps.csv`, VTK frames, `summary.json`).
 
+// Units are written in brackets ([mm], [N]) as in the workspace style: not intra-doc links.
+#![allow(rustdoc::broken_intra_doc_links)]
+
 pub mod naive;
 pub mod outputs;
 pub mod remote;

@@ -23,6 +23,9 @@
 //! the command, the rows, the free-motion vectors, the cached compliance columns); the state is
 //! the [`World`]'s; the tuning is one [`StepParams`].
 
+// Units are written in brackets ([mm], [N]) as in the workspace style: not intra-doc links.
+#![allow(rustdoc::broken_intra_doc_links)]
+
 pub mod correct;
 pub mod interact;
 pub mod observe;
