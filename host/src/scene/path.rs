@@ -22,6 +22,58 @@ impl fmt::Display for PathError {
 
 impl std::error::Error for PathError {}
 
+impl PathError {
+    fn new(field: impl Into<String>, reason: impl Into<String>) -> Self {
+        Self {
+            field: field.into(),
+            reason: reason.into(),
+        }
+    }
+}
+
+/// The path's vertices: the scene's points, or its formulas sampled at `samples` values of `s`.
+fn spec_points(spec: &PathSpec) -> Result<Vec<Vector3<f64>>, PathError> {
+    match (&spec.points, &spec.formula) {
+        (Some(_), Some(_)) => Err(PathError::new(
+            "path",
+            "give either `points` or `formula`, not both",
+        )),
+        (None, None) => Err(PathError::new("path", "give `points` or `formula`")),
+        (Some(p), None) => Ok(p.iter().map(|p| Vector3::from(*p)).collect()),
+        (None, Some(f)) => {
+            if spec.samples < 2 {
+                return Err(PathError::new("path.samples", "must be at least 2"));
+            }
+            let x = eval_formula("path.formula.x", &f.x, spec.samples)?;
+            let y = eval_formula("path.formula.y", &f.y, spec.samples)?;
+            let z = eval_formula("path.formula.z", &f.z, spec.samples)?;
+            Ok((0..spec.samples)
+                .map(|i| Vector3::new(x[i], y[i], z[i]))
+                .collect())
+        }
+    }
+}
+
+/// Cumulative arc length at each vertex; an error at a zero-length segment.
+fn arc_lengths(points: &[Vector3<f64>]) -> Result<Vec<f64>, PathError> {
+    let mut arc = Vec::with_capacity(points.len());
+    let mut acc = 0.0;
+    for (i, p) in points.iter().enumerate() {
+        if i > 0 {
+            let l = (p - points[i - 1]).norm();
+            if l <= 1e-9 {
+                return Err(PathError::new(
+                    format!("path.points[{i}]"),
+                    "repeats the previous point (zero-length segment)",
+                ));
+            }
+            acc += l;
+        }
+        arc.push(acc);
+    }
+    Ok(arc)
+}
+
 /// A polyline with cumulative arc length: the path in the gel, from the entry point on.
 #[derive(Clone, Debug, PartialEq)]
 pub struct SampledPath {
@@ -37,10 +89,7 @@ pub struct SampledPath {
 }
 
 fn eval_formula(field: &str, text: &str, samples: usize) -> Result<Vec<f64>, PathError> {
-    let err = |reason: String| PathError {
-        field: field.to_owned(),
-        reason,
-    };
+    let err = |reason: String| PathError::new(field, reason);
     let expr = exmex::parse::<f64>(text).map_err(|e| err(format!("cannot parse `{text}`: {e}")))?;
     let vars = expr.var_names().to_vec();
     if vars.iter().any(|v| v != "s") {
@@ -73,79 +122,27 @@ impl SampledPath {
     /// [`PathError`] when neither or both of `points` and `formula` are given, a formula does not
     /// parse, uses a variable other than `s`, is not finite, or the path has fewer than two distinct points.
     pub fn from_spec(spec: &PathSpec) -> Result<Self, PathError> {
-        let from_formula = spec.formula.is_some();
-        let points: Vec<Vector3<f64>> = match (&spec.points, &spec.formula) {
-            (Some(_), Some(_)) => {
-                return Err(PathError {
-                    field: "path".into(),
-                    reason: "give either `points` or `formula`, not both".into(),
-                });
-            }
-            (None, None) => {
-                return Err(PathError {
-                    field: "path".into(),
-                    reason: "give `points` or `formula`".into(),
-                });
-            }
-            (Some(p), None) => p.iter().map(|p| Vector3::from(*p)).collect(),
-            (None, Some(f)) => {
-                if spec.samples < 2 {
-                    return Err(PathError {
-                        field: "path.samples".into(),
-                        reason: "must be at least 2".into(),
-                    });
-                }
-                let x = eval_formula("path.formula.x", &f.x, spec.samples)?;
-                let y = eval_formula("path.formula.y", &f.y, spec.samples)?;
-                let z = eval_formula("path.formula.z", &f.z, spec.samples)?;
-                (0..spec.samples)
-                    .map(|i| Vector3::new(x[i], y[i], z[i]))
-                    .collect()
-            }
-        };
+        let points = spec_points(spec)?;
         if let Some(i) = points.iter().position(|p| !p.iter().all(|c| c.is_finite())) {
-            return Err(PathError {
-                field: format!("path.points[{i}]"),
-                reason: "not finite".into(),
-            });
+            return Err(PathError::new(format!("path.points[{i}]"), "not finite"));
         }
-        let mut arc = Vec::with_capacity(points.len());
-        let mut acc = 0.0;
-        for (i, p) in points.iter().enumerate() {
-            if i > 0 {
-                let l = (p - points[i - 1]).norm();
-                if l <= 1e-9 {
-                    return Err(PathError {
-                        field: format!("path.points[{i}]"),
-                        reason: "repeats the previous point (zero-length segment)".into(),
-                    });
-                }
-                acc += l;
-            }
-            arc.push(acc);
-        }
+        let arc = arc_lengths(&points)?;
         if points.len() < 2 {
-            return Err(PathError {
-                field: "path.points".into(),
-                reason: "needs at least two points".into(),
-            });
+            return Err(PathError::new("path.points", "needs at least two points"));
         }
         if !(spec.approach.is_finite() && spec.approach >= 0.0) {
-            return Err(PathError {
-                field: "path.approach".into(),
-                reason: "must be finite and ≥ 0 [mm]".into(),
-            });
+            return Err(PathError::new(
+                "path.approach",
+                "must be finite and ≥ 0 [mm]",
+            ));
         }
-        let entry_tangent = if from_formula && points.len() >= 3 {
+        let entry_tangent = if spec.formula.is_some() && points.len() >= 3 {
             (4.0 * points[1] - 3.0 * points[0] - points[2]).normalize()
         } else {
             (points[1] - points[0]).normalize()
         };
         if !entry_tangent.iter().all(|c| c.is_finite()) {
-            return Err(PathError {
-                field: "path".into(),
-                reason: "the entry tangent is undefined".into(),
-            });
+            return Err(PathError::new("path", "the entry tangent is undefined"));
         }
         Ok(Self {
             points,
