@@ -21,7 +21,6 @@ use needle_host::error::chain;
 use needle_host::scene::Scene;
 use needle_host::setup;
 use needle_host::step::ROWS;
-use std::path::Path;
 use std::process::ExitCode;
 use std::sync::atomic::AtomicBool;
 use std::time::Duration;
@@ -56,22 +55,9 @@ struct Cli {
     quiet: bool,
 }
 
-fn load_scene(arg: &str) -> Result<Scene, String> {
-    let p = Path::new(arg);
-    if p.exists() || arg.ends_with(".toml") {
-        return Scene::load(p).map_err(|e| e.to_string());
-    }
-    Scene::builtin(arg).ok_or_else(|| {
-        format!(
-            "`{arg}` is neither a scene file nor an embedded scene ({})",
-            Scene::BUILTIN.join(", ")
-        )
-    })
-}
-
 fn main() -> ExitCode {
     let cli = Cli::parse();
-    let scene = match load_scene(&cli.scene) {
+    let scene = match Scene::open(&cli.scene) {
         Ok(s) => s,
         Err(e) => {
             eprintln!("error: {e}");

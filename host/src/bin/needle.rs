@@ -19,7 +19,7 @@ use needle_host::run::{
 use needle_host::scene::Scene;
 use needle_host::setup;
 use needle_host::step::{ROWS, StepReport};
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
 
@@ -134,20 +134,6 @@ enum Ctl {
     Naive,
 }
 
-/// A scene from a file path or an embedded name.
-fn load_scene(arg: &str) -> Result<Scene, String> {
-    let p = Path::new(arg);
-    if p.exists() || arg.ends_with(".toml") {
-        return Scene::load(p).map_err(|e| e.to_string());
-    }
-    Scene::builtin(arg).ok_or_else(|| {
-        format!(
-            "`{arg}` is neither a scene file nor an embedded scene ({})",
-            Scene::BUILTIN.join(", ")
-        )
-    })
-}
-
 /// Applies `--nodes` and `--set FIELD=VALUE` overrides to a scene (validated again).
 fn customize(scene: Scene, nodes: Option<usize>, set: &[String]) -> Result<Scene, String> {
     let mut overrides = Vec::new();
@@ -171,7 +157,8 @@ fn customize(scene: Scene, nodes: Option<usize>, set: &[String]) -> Result<Scene
 
 /// The scene of the arguments, or the exit code of a usage error (printed).
 fn scene_of(a: &SceneArgs) -> Result<Scene, ExitCode> {
-    load_scene(&a.scene)
+    Scene::open(&a.scene)
+        .map_err(|e| e.to_string())
         .and_then(|s| customize(s, a.nodes, &a.set))
         .map_err(|e| {
             eprintln!("error: {e}");
@@ -337,7 +324,7 @@ fn report_cmd(opts: &ReportOptions) -> ExitCode {
             ExitCode::SUCCESS
         }
         Err(e) => {
-            eprintln!("error: {e}");
+            eprintln!("error: {}", chain(&e));
             ExitCode::FAILURE
         }
     }

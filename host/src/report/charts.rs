@@ -3,7 +3,7 @@
 //! system font is needed).
 
 use super::{
-    Group, PAPER_COMPLEX_E_MEAN, PAPER_TIME_PER_STEP, ReportError, ReportRun, controller_name, err,
+    Group, PAPER_COMPLEX_E_MEAN, PAPER_TIME_PER_STEP, ReportError, ReportRun, controller_name,
     paper_time,
 };
 use crate::run::ControllerKind;
@@ -24,12 +24,18 @@ pub(super) fn write_charts(dir: &Path, runs: &[ReportRun]) -> Result<Vec<PathBuf
         let svg = dir.join(format!("{name}.svg"));
         chart
             .draw(SVGBackend::new(&svg, CHART_SIZE).into_drawing_area())
-            .map_err(|e| err(&svg, e))?;
+            .map_err(|reason| ReportError::Chart {
+                file: svg.clone(),
+                reason,
+            })?;
         files.push(svg);
         let png = dir.join(format!("{name}.png"));
         chart
             .draw(BitMapBackend::new(&png, CHART_SIZE).into_drawing_area())
-            .map_err(|e| err(&png, e))?;
+            .map_err(|reason| ReportError::Chart {
+                file: png.clone(),
+                reason,
+            })?;
         files.push(png);
     }
     Ok(files)

@@ -1,7 +1,7 @@
 //! The report's CSV files: `runs.csv` (one row per run) and `error_vs_depth.csv` (every run's
 //! error at every step inside the gel).
 
-use super::{ReportError, ReportRun, controller_name, err};
+use super::{ReportError, ReportRun, controller_name, out_err};
 use crate::run::RunSummary;
 use std::path::Path;
 
@@ -124,17 +124,17 @@ fn run_row(r: &ReportRun) -> Vec<String> {
 
 /// Writes `runs.csv`: one row per run.
 pub(super) fn write_runs_csv(path: &Path, runs: &[ReportRun]) -> Result<(), ReportError> {
-    let mut w = ::csv::Writer::from_path(path).map_err(|e| err(path, e))?;
-    w.write_record(RUNS_HEADER).map_err(|e| err(path, e))?;
+    let mut w = ::csv::Writer::from_path(path).map_err(|e| out_err(path, e))?;
+    w.write_record(RUNS_HEADER).map_err(|e| out_err(path, e))?;
     for r in runs {
-        w.write_record(run_row(r)).map_err(|e| err(path, e))?;
+        w.write_record(run_row(r)).map_err(|e| out_err(path, e))?;
     }
-    w.flush().map_err(|e| err(path, e))
+    w.flush().map_err(|e| out_err(path, e))
 }
 
 /// Writes `error_vs_depth.csv`: every run's error at every step inside the gel.
 pub(super) fn write_error_csv(path: &Path, runs: &[ReportRun]) -> Result<(), ReportError> {
-    let mut w = ::csv::Writer::from_path(path).map_err(|e| err(path, e))?;
+    let mut w = ::csv::Writer::from_path(path).map_err(|e| out_err(path, e))?;
     w.write_record([
         "run",
         "scene",
@@ -143,7 +143,7 @@ pub(super) fn write_error_csv(path: &Path, runs: &[ReportRun]) -> Result<(), Rep
         "depth_mm",
         "error_mm",
     ])
-    .map_err(|e| err(path, e))?;
+    .map_err(|e| out_err(path, e))?;
     for r in runs {
         let params: Vec<&str> = r.memberships.iter().map(|m| m.parameter.as_str()).collect();
         let params = params.join(";");
@@ -156,8 +156,8 @@ pub(super) fn write_error_csv(path: &Path, runs: &[ReportRun]) -> Result<(), Rep
                 format!("{d:.4}"),
                 format!("{e:.5}"),
             ])
-            .map_err(|e| err(path, e))?;
+            .map_err(|e| out_err(path, e))?;
         }
     }
-    w.flush().map_err(|e| err(path, e))
+    w.flush().map_err(|e| out_err(path, e))
 }

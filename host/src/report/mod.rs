@@ -30,7 +30,9 @@ mod plan;
 mod runner;
 mod tables;
 
+use crate::output::{OutputError, OutputFailure};
 use crate::run::{ControllerKind, RunSummary};
+use crate::scene::SceneError;
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -215,27 +217,37 @@ pub struct ReportSummary {
 }
 
 /// Why the report could not be written. (A run that breaks down is not an error.)
-#[derive(Debug)]
-pub struct ReportError {
-    /// The file or folder concerned.
-    pub file: PathBuf,
-    /// What went wrong.
-    pub reason: String,
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum ReportError {
+    /// A planned scene is not embedded.
+    #[error("no embedded scene `{0}`")]
+    NoScene(String),
+    /// A planned scene with its overrides is invalid.
+    #[error("scene `{scene}` with the report's overrides")]
+    Scene {
+        /// The embedded scene.
+        scene: String,
+        /// Why.
+        #[source]
+        source: SceneError,
+    },
+    /// A file or folder could not be written.
+    #[error(transparent)]
+    Output(#[from] OutputError),
+    /// A chart could not be drawn (the plotting backend's error, as text: it is not `Send`).
+    #[error("chart {}: {reason}", file.display())]
+    Chart {
+        /// The chart's file.
+        file: PathBuf,
+        /// The backend's message.
+        reason: String,
+    },
 }
 
-impl std::fmt::Display for ReportError {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(f, "{}: {}", self.file.display(), self.reason)
-    }
-}
-
-impl std::error::Error for ReportError {}
-
-fn err(file: &Path, reason: impl std::fmt::Display) -> ReportError {
-    ReportError {
-        file: file.to_path_buf(),
-        reason: reason.to_string(),
-    }
+/// `OutputError` for `file` as a [`ReportError`].
+fn out_err(file: &Path, e: impl Into<OutputFailure>) -> ReportError {
+    ReportError::Output(OutputError::new(file, e))
 }
 
 fn controller_name(c: ControllerKind) -> &'static str {
@@ -252,8 +264,7 @@ fn controller_name(c: ControllerKind) -> &'static str {
 /// breaks down or fails to start is reported, not an error.
 pub fn report(opts: &ReportOptions) -> Result<ReportSummary, ReportError> {
     let start = Instant::now();
-    std::fs::create_dir_all(&opts.out_dir)
-        .map_err(|e| err(&opts.out_dir, format!("cannot create the folder: {e}")))?;
+    std::fs::create_dir_all(&opts.out_dir).map_err(|e| out_err(&opts.out_dir, e))?;
     let steps_cap = opts
         .steps
         .or(if opts.quick { Some(QUICK_STEPS) } else { None });
@@ -289,14 +300,14 @@ fn write_outputs(s: &mut ReportSummary) -> Result<(), ReportError> {
 
     let p = dir.join("summary.md");
     let md = tables::summary_markdown(s, &files, cfg!(feature = "charts"));
-    std::fs::write(&p, md).map_err(|e| err(&p, e))?;
+    std::fs::write(&p, md).map_err(|e| out_err(&p, e))?;
     files.push(p);
 
     let p = dir.join("report.json");
     files.push(p.clone());
     s.files = files;
-    let json = serde_json::to_string_pretty(&*s).map_err(|e| err(&p, e))?;
-    std::fs::write(&p, json).map_err(|e| err(&p, e))?;
+    let json = serde_json::to_string_pretty(&*s).map_err(|e| out_err(&p, e))?;
+    std::fs::write(&p, json).map_err(|e| out_err(&p, e))?;
     Ok(())
 }
 

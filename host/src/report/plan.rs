@@ -1,11 +1,10 @@
 //! The plan of the report: which scenes, controllers and overrides run, in which group, and the
 //! merge of the planned runs that are the same simulation.
 
-use super::{Group, Membership, ReportError, ReportRun, controller_name, err};
+use super::{Group, Membership, ReportError, ReportRun, controller_name};
 use crate::run::ControllerKind;
 use crate::scene::Scene;
 use std::collections::HashMap;
-use std::path::Path;
 
 /// One planned run before de-duplication.
 pub(super) struct Spec {
@@ -173,12 +172,15 @@ pub(super) fn planned_runs(quick: bool) -> Result<Vec<(ReportRun, Scene)>, Repor
     let mut index: HashMap<(String, &'static str), usize> = HashMap::new();
     for (order, spec) in plan(quick).into_iter().enumerate() {
         let base = Scene::builtin(spec.scene)
-            .ok_or_else(|| err(Path::new(spec.scene), "no such embedded scene"))?;
+            .ok_or_else(|| ReportError::NoScene(spec.scene.to_owned()))?;
         let scene = base
             .with_overrides(&spec.overrides)
-            .map_err(|e| err(Path::new(spec.scene), e))?;
-        let key = toml::to_string(&scene).map_err(|e| err(Path::new(spec.scene), e))?;
-        let key = (key, controller_name(spec.controller));
+            .map_err(|source| ReportError::Scene {
+                scene: spec.scene.to_owned(),
+                source,
+            })?;
+        // The same simulation: the same scene (every field) under the same controller.
+        let key = (format!("{scene:?}"), controller_name(spec.controller));
         let membership = Membership {
             group: spec.group,
             parameter: spec.parameter,

@@ -80,6 +80,35 @@ impl Scene {
         Ok(scene)
     }
 
+    /// The scene a command line names: a file (an existing path, or any name ending in
+    /// `.toml`), else an embedded scene.
+    ///
+    /// # Errors
+    /// [`SceneError`] for a file that cannot be loaded, or a name that is neither.
+    ///
+    /// # Example
+    /// ```
+    /// use needle_host::scene::Scene;
+    ///
+    /// assert_eq!(Scene::open("simple").unwrap().name, "simple");
+    /// let e = Scene::open("nowhere").unwrap_err();
+    /// assert!(e.to_string().contains("neither a scene file nor an embedded scene"));
+    /// ```
+    pub fn open(arg: &str) -> Result<Self, SceneError> {
+        let p = Path::new(arg);
+        if p.exists() || arg.ends_with(".toml") {
+            return Self::load(p);
+        }
+        Self::builtin(arg).ok_or_else(|| SceneError {
+            file: arg.to_owned(),
+            field: String::new(),
+            reason: format!(
+                "neither a scene file nor an embedded scene ({})",
+                Self::BUILTIN.join(", ")
+            ),
+        })
+    }
+
     /// One of the embedded benchmark scenes: `"simple"` or `"complex"`.
     pub fn builtin(name: &str) -> Option<Self> {
         let text = match name {

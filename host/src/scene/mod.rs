@@ -455,7 +455,8 @@ impl Default for InsertionSpec {
     }
 }
 
-/// How the target parameter `c` moves along the path.
+/// How the target parameter `c` moves along the path (the schedule itself is
+/// [`crate::step::Insertion::target_arc`]).
 #[derive(Clone, Copy, Debug, Default, Deserialize, Serialize, PartialEq, Eq)]
 #[serde(rename_all = "kebab-case")]
 pub enum InsertionMode {
@@ -464,36 +465,6 @@ pub enum InsertionMode {
     Insert,
     /// To the end of the path and back to the start (the tip in the air again), repeated.
     BackAndForth,
-}
-
-impl InsertionSpec {
-    /// The target's arc length after step `k` (0-based) on a path of `total` length [mm].
-    pub fn target_arc(&self, total: f64, k: usize) -> f64 {
-        let s = (k + 1) as f64 * self.advance_per_step;
-        match self.mode {
-            InsertionMode::Insert => s.min(total),
-            InsertionMode::BackAndForth => {
-                if total <= 0.0 {
-                    return 0.0;
-                }
-                let phase = s.rem_euclid(2.0 * total);
-                if phase <= total {
-                    phase
-                } else {
-                    2.0 * total - phase
-                }
-            }
-        }
-    }
-
-    /// Steps of the default run: to the end of the path, or there and back.
-    pub fn default_steps(&self, total: f64) -> usize {
-        let one_way = (total / self.advance_per_step).ceil() as usize;
-        match self.mode {
-            InsertionMode::Insert => one_way,
-            InsertionMode::BackAndForth => 2 * one_way,
-        }
-    }
 }
 
 /// Outputs of a run.

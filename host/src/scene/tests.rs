@@ -257,14 +257,17 @@ fn start_joints_and_insertion_mode_are_checked_and_used() {
         "ok.toml",
     )
     .expect("valid");
+    // The scene's schedule is the step's: one formula (`step::Insertion`).
+    let insertion = crate::setup::step_params(&s).insertion;
     let total = 10.0;
-    assert_eq!(s.insertion.default_steps(total), 20);
-    let c: Vec<f64> = (0..22).map(|k| s.insertion.target_arc(total, k)).collect();
+    assert_eq!(insertion.default_steps(total), 20);
+    let c: Vec<f64> = (0..22).map(|k| insertion.target_arc(total, k)).collect();
     assert_eq!(c[8], 9.0);
     assert_eq!(c[9], 10.0);
     assert_eq!(c[10], 9.0);
     assert_eq!(c[19], 0.0);
     assert_eq!(c[20], 1.0);
     let insert = Scene::from_toml_str(MINIMAL, "ok.toml").expect("valid");
-    assert_eq!(insert.insertion.target_arc(total, 500), total);
+    let insertion = crate::setup::step_params(&insert).insertion;
+    assert_eq!(insertion.target_arc(total, 500), total);
 }
