@@ -5,7 +5,6 @@
 //! [`step::Pipeline`] steps the world through a transport to the core ([`step`]: the paper's
 //! Algorithm 1); [`run`] loops over the steps with its observers (metrics, VTK, summary).
 
-mod boxed;
 pub mod compliance;
 pub mod constraints;
 pub mod error;

@@ -5,7 +5,6 @@
 // Units are written in brackets ([mm], [N]) as in the workspace style: not intra-doc links.
 #![allow(rustdoc::broken_intra_doc_links)]
 
-use crate::boxed;
 use crate::step::ROWS;
 use needle_bridge::{ExchangeReport, Transport, TransportError};
 use needle_core::inverse::{Controller, InverseParams, StepError};
@@ -44,7 +43,7 @@ impl OpenLoop {
     /// An open loop for `chain` with the solver tuning of `params`, replaying `joints`.
     pub fn new(chain: DhChain<JOINTS>, params: InverseParams, joints: Vec<[f64; JOINTS]>) -> Self {
         Self {
-            controller: boxed::controller(chain, params),
+            controller: Controller::new_boxed(chain, params),
             joints,
         }
     }

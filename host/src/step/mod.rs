@@ -34,7 +34,6 @@ pub mod rows;
 
 pub use params::{Insertion, Interaction, StepParams, TargetMotion};
 
-use crate::boxed;
 use crate::compliance::PointColumns;
 use crate::constraints::{ConstraintSet, GroupRole};
 use crate::error::{Body, CommandMismatch, NonFiniteAt, SimError};
@@ -159,8 +158,8 @@ impl Pipeline {
     /// Scratch for `world`'s bodies.
     pub fn new(world: &World) -> Self {
         Self {
-            frame: boxed::frame(),
-            command: boxed::command(),
+            frame: ComplianceFrame::new_boxed(),
+            command: Command::new_boxed(),
             set: ConstraintSet::default(),
             gel_dx: vec![0.0; world.gel.dof_count()],
             needle_dx: vec![0.0; world.needle.dof_count()],
