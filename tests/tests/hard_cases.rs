@@ -434,7 +434,7 @@ fn case7_unreachable_target_saturates_reports_and_stays_still() {
     eprintln!(
         "unreachable: {} of {n} steps report the target unreachable, {} at a limit; lowest tip z {lowest:.2} mm, \
          tip z spread over the last half {spread:.3} mm, final error {:.1} mm",
-        s.unreachable_steps, s.limit_steps, s.e_final_mm
+        s.unreachable_steps, s.limit_steps, s.e_last_mm
     );
     assert!(s.unreachable_steps > n / 2);
     assert!(s.limit_steps > 0);

@@ -195,7 +195,8 @@ fn with_progress<R>(
     result
 }
 
-/// Prints the summary of a run (exit code 3 when it did not complete) or its error.
+/// Prints the summary of a run (exit code by its outcome: 0 reached, 3 stopped early, 4 missed
+/// the target, 5 hit an obstacle; README "Exit codes") or its error (1).
 fn finish(result: Result<RunResult, RunError>, json: bool) -> ExitCode {
     match result {
         Ok(r) => print_summary(&r.summary, json),
@@ -224,11 +225,7 @@ fn print_summary(s: &RunSummary, json: bool) -> ExitCode {
             s.holds, s.held_ms
         );
     }
-    if s.completed {
-        ExitCode::SUCCESS
-    } else {
-        ExitCode::from(3)
-    }
+    ExitCode::from(s.outcome.exit_code())
 }
 
 fn print_text(s: &RunSummary) {
@@ -246,12 +243,22 @@ fn print_text(s: &RunSummary) {
         }
     );
     println!(
-        "tracking error inside the gel: mean {:.3} mm, max {:.3} mm, final {:.3} mm (depth {:.1} mm, puncture at step {})",
+        "tracking error inside the gel: mean {:.3} mm, max {:.3} mm, final (to the path's end) {:.3} mm (depth {:.1} mm, puncture at step {})",
         s.e_mean_mm,
         s.e_max_mm,
         s.e_final_mm,
         s.final_depth_mm,
         s.puncture_step.map_or("—".to_string(), |k| k.to_string())
+    );
+    println!(
+        "outcome: {} · distance to the path's end {:.3} mm (last step's error {:.3} mm) · reached within 1 mm at step {} of {} nominal · path deviation mean {:.3} mm, max {:.3} mm",
+        s.outcome.name(),
+        s.e_final_mm,
+        s.e_last_mm,
+        s.steps_to_target.map_or("—".to_string(), |k| k.to_string()),
+        s.steps_nominal,
+        s.path_deviation_mean_mm,
+        s.path_deviation_max_mm,
     );
     for c in &s.clearances {
         println!(

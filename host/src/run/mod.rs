@@ -20,12 +20,14 @@
 // Units are written in brackets ([mm], [N]) as in the workspace style: not intra-doc links.
 #![allow(rustdoc::broken_intra_doc_links)]
 
+pub mod metrics;
 pub mod naive;
 pub mod outputs;
 pub mod remote;
 pub mod summary;
 
 pub use crate::setup::planned_steps;
+pub use metrics::Outcome;
 pub use summary::{Clearance, RunSummary, STRAIN_EVERY, StageTiming, Timing};
 
 use crate::error::{SetupError, chain};

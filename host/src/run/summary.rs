@@ -1,6 +1,7 @@
 //! The summary of a run: tracking error, clearances, stage times, solver and gel statistics —
 //! gathered step by step by [`Statistics`] and written once at the end.
 
+use super::metrics::{Outcome, PathMetrics};
 use super::{ControllerKind, Observer};
 use crate::output::OutputError;
 use crate::setup::Plan;
@@ -87,8 +88,11 @@ pub struct RunSummary {
     pub e_mean_mm: f64,
     /// Largest tracking error inside the gel [mm].
     pub e_max_mm: f64,
-    /// Tracking error at the last step [mm].
+    /// Distance from the tip to the path's end point (deformed with the gel) after the last
+    /// step [mm] — not the last step's target.
     pub e_final_mm: f64,
+    /// Tracking error at the last step (to that step's target) [mm].
+    pub e_last_mm: f64,
     /// Final insertion depth [mm].
     pub final_depth_mm: f64,
     /// Smallest clearance per obstacle.
@@ -124,6 +128,19 @@ pub struct RunSummary {
     pub holds: usize,
     /// Total time spent holding [ms].
     pub held_ms: f64,
+    /// Mean distance from the tip to the deformed path (polyline) over the steps inside the
+    /// gel [mm].
+    pub path_deviation_mean_mm: f64,
+    /// Largest distance from the tip to the deformed path inside the gel [mm].
+    pub path_deviation_max_mm: f64,
+    /// Steps until the tip first came within `metrics::REACH_TOLERANCE_MM` of the path's end.
+    pub steps_to_target: Option<usize>,
+    /// The nominal steps of the insertion (path length / advance per step).
+    pub steps_nominal: usize,
+    /// Smallest clearance to any obstacle [mm] (`+∞`, written `null`, without obstacles).
+    pub min_clearance_mm: f64,
+    /// How the run ended ([`Outcome`]; reached is defined in [`super::metrics`]).
+    pub outcome: Outcome,
 }
 
 /// What the summary needs beyond the reports, gathered step by step: the smallest clearance
@@ -133,6 +150,7 @@ pub struct Statistics {
     max_strain: f64,
     max_inverted: usize,
     last_step: usize,
+    path: PathMetrics,
 }
 
 impl Statistics {
@@ -143,6 +161,7 @@ impl Statistics {
             max_strain: 0.0,
             max_inverted: 0,
             last_step: steps.saturating_sub(1),
+            path: PathMetrics::default(),
         }
     }
 }
@@ -152,6 +171,7 @@ impl Observer for Statistics {
         for (m, c) in self.min_clearance.iter_mut().zip(world.clearances()) {
             *m = m.min(c);
         }
+        self.path.step(world, r);
         if (r.step + 1).is_multiple_of(STRAIN_EVERY) || r.step == self.last_step {
             let st = world.gel.tetra().strain_stats(world.gel.positions());
             self.max_strain = self.max_strain.max(st.max_strain);
@@ -216,6 +236,19 @@ impl Statistics {
             })
             .collect();
         let background = world.gel.background_counts().unwrap_or((0, 0));
+        let deviation = self.path.deviation();
+        let min_clearance_mm = self
+            .min_clearance
+            .iter()
+            .copied()
+            .fold(f64::INFINITY, f64::min);
+        let outcome = Outcome::of(
+            end.stopped.is_some() || reports.is_empty(),
+            min_clearance_mm < 0.0,
+            self.path.e_end,
+            self.path.steps_to_target,
+            plan.steps,
+        );
         RunSummary {
             scene: plan.name.clone(),
             controller: end.controller,
@@ -227,7 +260,12 @@ impl Statistics {
             puncture_step: reports.iter().find(|r| r.punctured_now).map(|r| r.step),
             e_mean_mm: e_mean,
             e_max_mm: inside.iter().map(|r| r.error).fold(f64::NAN, f64::max),
-            e_final_mm: reports.last().map_or(f64::NAN, |r| r.error),
+            e_final_mm: if reports.is_empty() {
+                f64::NAN
+            } else {
+                self.path.e_end
+            },
+            e_last_mm: reports.last().map_or(f64::NAN, |r| r.error),
             final_depth_mm: reports.last().map_or(0.0, |r| r.depth),
             obstacle_hit: clearances.iter().any(|c| c.min_mm < 0.0),
             clearances,
@@ -255,6 +293,12 @@ impl Statistics {
             immediate_factorizations: background.1,
             holds: end.holds.0,
             held_ms: end.holds.1,
+            path_deviation_mean_mm: deviation.0,
+            path_deviation_max_mm: deviation.1,
+            steps_to_target: self.path.steps_to_target,
+            steps_nominal: plan.steps,
+            min_clearance_mm,
+            outcome,
         }
     }
 }

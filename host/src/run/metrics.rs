@@ -1,0 +1,215 @@
+//! Whether a run did its job: the distance from the tip to the path's end point when the run
+//! ends (`e_final`), the tip's deviation from the deformed path, the steps it took to reach the
+//! end, and the [`Outcome`] with its exit code.
+//!
+//! **Reached** is strict: the run was not stopped, no obstacle was hit, the tip came within
+//! [`REACH_TOLERANCE_MM`] of the path's end point (deformed with the gel) within
+//! [`STEP_ALLOWANCE`] × the nominal steps (path length / `advance_per_step`), and it is still
+//! within that tolerance at the run's last step.
+
+// Units are written in brackets ([mm], [N]) as in the workspace style: not intra-doc links.
+#![allow(rustdoc::broken_intra_doc_links)]
+
+use crate::proximity::Embedded;
+use crate::step::StepReport;
+use crate::world::World;
+use nalgebra::Vector3;
+use serde::Serialize;
+
+/// The tip must end within this distance of the path's end point [mm].
+pub const REACH_TOLERANCE_MM: f64 = 1.0;
+
+/// ... within this many times the nominal steps.
+pub const STEP_ALLOWANCE: f64 = 1.2;
+
+/// How a run ended.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Outcome {
+    /// The tip ended at the path's end point (see the module docs).
+    Reached,
+    /// The run went to its end without an obstacle hit or a stop, but the tip did not end within
+    /// the tolerance of the path's end point in time.
+    MissedTarget,
+    /// The needle went into an obstacle (clearance below 0).
+    ObstacleHit,
+    /// The run stopped early (a breakdown, a non-finite state, a divergence or a transport
+    /// failure: `RunSummary::stopped` says which).
+    Diverged,
+}
+
+impl Outcome {
+    /// The process exit code of a run that ended so (`needle run`, `needle serve`): 0 reached,
+    /// 3 diverged / stopped, 4 missed the target, 5 hit an obstacle.
+    pub fn exit_code(self) -> u8 {
+        match self {
+            Self::Reached => 0,
+            Self::Diverged => 3,
+            Self::MissedTarget => 4,
+            Self::ObstacleHit => 5,
+        }
+    }
+
+    /// The name used in the summaries and tables.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Reached => "reached",
+            Self::MissedTarget => "missed_target",
+            Self::ObstacleHit => "obstacle_hit",
+            Self::Diverged => "diverged",
+        }
+    }
+
+    /// The outcome of a run: stopped → diverged, else hit → obstacle hit, else reached when the
+    /// tip ends within the tolerance and got there within the allowance, else missed.
+    pub fn of(
+        stopped: bool,
+        obstacle_hit: bool,
+        e_final_mm: f64,
+        steps_to_target: Option<usize>,
+        steps_nominal: usize,
+    ) -> Self {
+        let allowed = (STEP_ALLOWANCE * steps_nominal as f64).floor() as usize;
+        if stopped {
+            Self::Diverged
+        } else if obstacle_hit {
+            Self::ObstacleHit
+        } else if e_final_mm <= REACH_TOLERANCE_MM && steps_to_target.is_some_and(|k| k <= allowed)
+        {
+            Self::Reached
+        } else {
+            Self::MissedTarget
+        }
+    }
+}
+
+/// Distance from `p` to the polyline through `points` [mm] (∞ for fewer than 2 points).
+pub fn distance_to_polyline(points: &[Vector3<f64>], p: &Vector3<f64>) -> f64 {
+    points
+        .windows(2)
+        .map(|s| {
+            let d = s[1] - s[0];
+            let l2 = d.norm_squared();
+            let t = if l2 > 0.0 {
+                ((p - s[0]).dot(&d) / l2).clamp(0.0, 1.0)
+            } else {
+                0.0
+            };
+            (s[0] + t * d - p).norm()
+        })
+        .fold(f64::INFINITY, f64::min)
+}
+
+/// Path metrics gathered step by step.
+#[derive(Clone, Debug)]
+pub struct PathMetrics {
+    /// The path's vertices in the gel, embedded at their rest positions once the tip is in.
+    embedded: Option<Vec<Embedded>>,
+    /// Scratch: the deformed vertices.
+    deformed: Vec<Vector3<f64>>,
+    deviation_sum: f64,
+    deviation_count: usize,
+    deviation_max: f64,
+    /// Steps until the tip first came within the tolerance of the path's end point.
+    pub steps_to_target: Option<usize>,
+    /// Distance from the tip to the path's end point after the last step [mm].
+    pub e_end: f64,
+}
+
+impl Default for PathMetrics {
+    fn default() -> Self {
+        Self {
+            embedded: None,
+            deformed: Vec::new(),
+            deviation_sum: 0.0,
+            deviation_count: 0,
+            deviation_max: 0.0,
+            steps_to_target: None,
+            e_end: f64::INFINITY,
+        }
+    }
+}
+
+impl PathMetrics {
+    /// After step `r` of `world`.
+    pub fn step(&mut self, world: &World, r: &StepReport) {
+        let end = world.target(world.path.total_length());
+        self.e_end = (r.tip - end).norm();
+        if self.e_end <= REACH_TOLERANCE_MM && self.steps_to_target.is_none() {
+            self.steps_to_target = Some(r.step + 1);
+        }
+        if !r.inserted {
+            return;
+        }
+        if self.embedded.is_none() {
+            let a = world.path.approach;
+            let e: Option<Vec<Embedded>> = world
+                .path
+                .arc
+                .iter()
+                .map(|s| world.target_embedding(a + s))
+                .collect();
+            // A vertex outside the mesh (should not happen: the path lies in the gel): no
+            // deviation for this run rather than a wrong one.
+            self.embedded = Some(e.unwrap_or_default());
+        }
+        let Some(e) = &self.embedded else { return };
+        if e.len() < 2 {
+            return;
+        }
+        self.deformed.clear();
+        self.deformed.extend(e.iter().map(|p| world.gel_point(p)));
+        let d = distance_to_polyline(&self.deformed, &r.tip);
+        self.deviation_sum += d;
+        self.deviation_count += 1;
+        self.deviation_max = self.deviation_max.max(d);
+    }
+
+    /// Mean and largest distance from the tip to the deformed path over the steps inside the
+    /// gel [mm] (NaN when the tip never went in).
+    pub fn deviation(&self) -> (f64, f64) {
+        if self.deviation_count == 0 {
+            (f64::NAN, f64::NAN)
+        } else {
+            (
+                self.deviation_sum / self.deviation_count as f64,
+                self.deviation_max,
+            )
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn polyline_distance_is_to_the_nearest_segment() {
+        let pts = [
+            Vector3::new(0.0, 0.0, 0.0),
+            Vector3::new(10.0, 0.0, 0.0),
+            Vector3::new(10.0, 10.0, 0.0),
+        ];
+        assert!((distance_to_polyline(&pts, &Vector3::new(5.0, 2.0, 0.0)) - 2.0).abs() < 1e-12);
+        assert!((distance_to_polyline(&pts, &Vector3::new(12.0, 5.0, 0.0)) - 2.0).abs() < 1e-12);
+        // Beyond the end: the distance to the end point.
+        assert!((distance_to_polyline(&pts, &Vector3::new(10.0, 13.0, 4.0)) - 5.0).abs() < 1e-12);
+        assert!(distance_to_polyline(&pts[..1], &Vector3::zeros()).is_infinite());
+    }
+
+    #[test]
+    fn reached_needs_tolerance_time_and_no_hit_or_stop() {
+        use Outcome::*;
+        assert_eq!(Outcome::of(false, false, 0.9, Some(120), 100), Reached);
+        assert_eq!(Outcome::of(false, false, 1.1, Some(120), 100), MissedTarget);
+        assert_eq!(Outcome::of(false, false, 0.9, Some(121), 100), MissedTarget);
+        assert_eq!(Outcome::of(false, false, 0.9, None, 100), MissedTarget);
+        assert_eq!(Outcome::of(false, true, 0.1, Some(90), 100), ObstacleHit);
+        assert_eq!(Outcome::of(true, true, 0.1, Some(90), 100), Diverged);
+        let codes: Vec<u8> = [Reached, Diverged, MissedTarget, ObstacleHit]
+            .iter()
+            .map(|o| o.exit_code())
+            .collect();
+        assert_eq!(codes, [0, 3, 4, 5]);
+    }
+}
