@@ -1,5 +1,6 @@
 use super::*;
 use crate::mesh::box_mesh;
+use serde_json::{Value, json};
 
 /// Decodes standard base64 (test side: an independent, table-free decoder).
 fn decode_base64(text: &str) -> Vec<u8> {
