@@ -85,10 +85,10 @@ pub enum SetupError {
         angle_error: f64,
     },
     /// The path's entry point is not on the gel.
-    #[error("the path's entry point {0} is not on the gel")]
+    #[error("the path's entry point {} is not on the gel", mm(.0))]
     EntryOffGel(Vector3<f64>),
     /// An obstacle's centre is not inside the gel.
-    #[error("obstacles[{index}]: centre {center} is not inside the gel")]
+    #[error("obstacles[{index}]: centre {} is not inside the gel", mm(center))]
     ObstacleOutside {
         /// Index in the scene's list.
         index: usize,
@@ -96,6 +96,15 @@ pub enum SetupError {
         center: Vector3<f64>,
     },
     /// An FE model could not be built.
+    /// The scene's plan cannot work: a path outside the gel or into its fixed part, an
+    /// obstacle on the path, a needle too short for the insertion, a mesh in the wrong unit.
+    #[error("{field}: {reason}")]
+    Plan {
+        /// The scene field at fault.
+        field: String,
+        /// Why, in plain units.
+        reason: String,
+    },
     #[error("the {body} model cannot be built")]
     Model {
         /// Which.
@@ -104,6 +113,11 @@ pub enum SetupError {
         #[source]
         source: FemError,
     },
+}
+
+/// A point on one line in millimetres (nalgebra's `Display` draws a matrix over several lines).
+pub fn mm(v: &Vector3<f64>) -> String {
+    format!("({:.2}, {:.2}, {:.2}) mm", v.x, v.y, v.z)
 }
 
 /// Which stage of a step found a non-finite value.
@@ -190,7 +204,7 @@ pub enum SimError {
     #[error("the command does not answer the frame: {0}")]
     Command(CommandMismatch),
     /// The tip punctured the surface at a point that is not on the gel.
-    #[error("punctured at {0}, which is not on the gel")]
+    #[error("punctured at {}, which is not on the gel", mm(.0))]
     PunctureOffGel(Vector3<f64>),
 }
 

@@ -5,6 +5,7 @@
 //! [`step::Pipeline`] steps the world through a transport to the core ([`step`]: the paper's
 //! Algorithm 1); [`run`] loops over the steps with its observers (metrics, VTK, summary).
 
+mod bounded_read;
 pub mod compliance;
 pub mod constraints;
 pub mod error;
@@ -14,6 +15,7 @@ pub mod linalg;
 pub mod mesh;
 pub mod open_loop;
 pub mod output;
+pub mod plan_check;
 pub mod proximity;
 pub mod replay;
 pub mod report;

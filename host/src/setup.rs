@@ -94,6 +94,7 @@ impl Setup {
             obstacles,
             q,
         })?;
+        crate::plan_check::check(scene, &world)?;
         Ok(Self {
             world,
             params: step_params(scene),
@@ -210,7 +211,24 @@ pub fn gel_mesh(scene: &Scene) -> Result<TetMesh, SetupError> {
         (None, None) => return Err(SetupError::NoMesh),
     };
     mesh.validate().map_err(SetupError::Mesh)?;
+    metres_hint(&mesh)?;
     Ok(mesh)
+}
+
+/// A gel smaller than 2 mm across is refused with a hint: coordinates are read in mm, and such a
+/// mesh was most likely written in metres.
+fn metres_hint(mesh: &TetMesh) -> Result<(), SetupError> {
+    let (lo, hi) = mesh.bounds();
+    let size = (hi - lo).norm();
+    if size >= 2.0 {
+        return Ok(());
+    }
+    Err(SetupError::Plan {
+        field: "gel.mesh".into(),
+        reason: format!(
+            "the gel is only {size:.3} mm across; coordinates are read in mm (a mesh in metres? scale it by 1000)"
+        ),
+    })
 }
 
 /// The fixed gel nodes of a scene: below `fixed.below_z` and the listed ones.

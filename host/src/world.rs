@@ -231,6 +231,14 @@ impl World {
         self.rest_locator.locate(rest, tets, &p, 1.0)
     }
 
+    /// Whether `p` lies in the rest gel (barycentric weights above −1 %: on the surface counts).
+    pub fn in_rest_gel(&self, p: &Vector3<f64>) -> bool {
+        let (rest, tets) = self.rest_mesh();
+        self.rest_locator
+            .locate(rest, tets, p, 0.0)
+            .is_some_and(|e| e.weights.iter().all(|w| *w >= -0.01))
+    }
+
     /// Current target point [mm].
     pub fn target(&self, c: f64) -> Vector3<f64> {
         match self.target_embedding(c) {

@@ -19,14 +19,16 @@
 //! (lock-step with a host that waits).
 
 use crate::payload::{CommandHeader, CommandKind, FrameHeader, setup_fingerprint};
+use crate::plausible::{Implausible, Plausibility};
 use crate::shm::{
     BridgeConfig, CommandPublisher, FrameSubscriber, Ipc, cleanup_dead_nodes,
-    command_service_counting, create_node, frame_service_counting, ipc_err, loan_initialised,
-    pause,
+    command_service_counting, create_node_cleaning, frame_service_counting, ipc_err,
+    loan_initialised, pause,
 };
 use crate::transport::TransportError;
 use core::fmt;
 use core::time::Duration;
+use iceoryx2::node::NodeWaitFailure;
 use iceoryx2::prelude::*;
 use needle_core::inverse::{Controller, InverseParams};
 use needle_core::kinematics::DhChain;
@@ -74,6 +76,24 @@ pub enum Rejection {
         /// Last sequence accepted.
         last: u64,
     },
+    /// Its sequence jumps ahead of the next one expected from the host session (a host steps
+    /// one at a time): a forged frame, never allowed to move the expected sequence.
+    SequenceJump {
+        /// Sequence received.
+        found: u64,
+        /// Last sequence accepted.
+        last: u64,
+    },
+    /// It comes from another host session while the one followed is alive (a stale or forged
+    /// host); the controller follows a new session only once the old one fell silent.
+    OtherSession {
+        /// The frame's session.
+        found: u64,
+        /// The session followed.
+        followed: u64,
+    },
+    /// Its numbers are physically implausible for this set-up ([`Implausible`]).
+    Implausible(Implausible),
     /// It was built for another robot or tuning (setup fingerprint).
     SetupMismatch {
         /// The frame's fingerprint.
@@ -90,6 +110,14 @@ impl fmt::Display for Rejection {
             Self::SequenceBackwards { found, last } => {
                 write!(f, "sequence {found} after {last}: going backwards")
             }
+            Self::SequenceJump { found, last } => {
+                write!(f, "sequence {found} after {last}: jumping ahead")
+            }
+            Self::OtherSession { found, followed } => write!(
+                f,
+                "frame of host session {found:016x} while following {followed:016x}"
+            ),
+            Self::Implausible(why) => write!(f, "implausible frame: {why}"),
             Self::SetupMismatch { found, expected } => write!(
                 f,
                 "frame built for another robot set-up (fingerprint {found:016x}, expected {expected:016x})"
@@ -113,6 +141,10 @@ pub struct ControllerStats {
     pub rejected_sequence: u64,
     /// Of which came from another set-up.
     pub rejected_setup: u64,
+    /// Of which came from another host session while the followed one was alive.
+    pub rejected_session: u64,
+    /// Of which were physically implausible.
+    pub rejected_implausible: u64,
     /// Valid frames superseded by a newer one before a tick could solve them.
     pub frames_skipped: u64,
     /// Repeated frames answered again from the cache.
@@ -139,13 +171,15 @@ impl fmt::Display for ControllerStats {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         write!(
             f,
-            "frames received {}, solved {}, rejected {} (invalid {}, sequence {}, set-up {}), skipped {}, repeated answers {}, step errors {}; commands sent {} (holds {} in {} hold events); host sessions {}; dead nodes cleaned {}, hung services removed {}",
+            "frames received {}, solved {}, rejected {} (invalid {}, sequence {}, set-up {}, other session {}, implausible {}), skipped {}, repeated answers {}, step errors {}; commands sent {} (holds {} in {} hold events); host sessions {}; dead nodes cleaned {}, hung services removed {}",
             self.frames_received,
             self.frames_solved,
             self.frames_rejected,
             self.rejected_invalid,
             self.rejected_sequence,
             self.rejected_setup,
+            self.rejected_session,
+            self.rejected_implausible,
             self.frames_skipped,
             self.answers_repeated,
             self.step_errors,
@@ -161,7 +195,8 @@ impl fmt::Display for ControllerStats {
 
 /// A frame that passed every check, with what the loop needs to know about it.
 enum Verdict {
-    Fresh,
+    /// With the frame's base compliance scale ([`Plausibility::check`]).
+    Fresh(f64),
     Repeat,
     Reject(Rejection),
 }
@@ -175,6 +210,7 @@ pub struct ControllerNode<const M: usize> {
     setup: u64,
     opts: ControllerOptions,
     session: Option<u64>,
+    plausibility: Plausibility,
     last_sequence: u64,
     last_answer: Box<Command<M>>,
     have_answer: bool,
@@ -200,8 +236,7 @@ impl<const M: usize> ControllerNode<M> {
         params: InverseParams,
         opts: &ControllerOptions,
     ) -> Result<Self, TransportError> {
-        let node = create_node("needle-controller", &opts.bridge)?;
-        let dead = cleanup_dead_nodes(&node);
+        let (node, dead) = create_node_cleaning("needle-controller", &opts.bridge)?;
         let mut hung = 0;
         let frames = frame_service_counting::<M>(&node, &opts.bridge, &mut hung)?
             .subscriber_builder()
@@ -223,6 +258,7 @@ impl<const M: usize> ControllerNode<M> {
             setup: setup_fingerprint(&chain, &params),
             opts: opts.clone(),
             session: None,
+            plausibility: Plausibility::default(),
             last_sequence: 0,
             last_answer,
             have_answer: false,
@@ -254,6 +290,7 @@ impl<const M: usize> ControllerNode<M> {
         }
     }
 
+    /// The verdict on a received frame: set-up, session, sequence, validity, plausibility.
     fn judge(&self, h: &FrameHeader, f: &ComplianceFrame<M>) -> Verdict {
         if h.setup != self.setup {
             return Verdict::Reject(Rejection::SetupMismatch {
@@ -261,31 +298,65 @@ impl<const M: usize> ControllerNode<M> {
                 expected: self.setup,
             });
         }
-        if self.session == Some(h.session) {
-            if f.sequence < self.last_sequence {
-                return Verdict::Reject(Rejection::SequenceBackwards {
-                    found: f.sequence,
-                    last: self.last_sequence,
+        let same = self.session == Some(h.session);
+        match self.session {
+            Some(_) if same => {
+                let last = self.last_sequence;
+                if f.sequence < last {
+                    return Verdict::Reject(Rejection::SequenceBackwards {
+                        found: f.sequence,
+                        last,
+                    });
+                }
+                if f.sequence == last && self.have_answer {
+                    return Verdict::Repeat;
+                }
+                // A host steps one at a time (and repeats a frame it got no answer to).
+                if f.sequence > last.saturating_add(1) {
+                    return Verdict::Reject(Rejection::SequenceJump {
+                        found: f.sequence,
+                        last,
+                    });
+                }
+            }
+            // Another session while the followed host is alive: not followed.
+            Some(followed) if !self.holding => {
+                return Verdict::Reject(Rejection::OtherSession {
+                    found: h.session,
+                    followed,
                 });
             }
-            if f.sequence == self.last_sequence && self.have_answer {
-                return Verdict::Repeat;
-            }
+            _ => {}
         }
-        match f.validate() {
-            Ok(()) => Verdict::Fresh,
-            Err(e) => Verdict::Reject(Rejection::Invalid(e)),
+        if let Err(e) = f.validate() {
+            return Verdict::Reject(Rejection::Invalid(e));
+        }
+        let checks = if same {
+            self.plausibility
+        } else {
+            Plausibility::default()
+        };
+        match checks.check(f) {
+            Ok(scale) => Verdict::Fresh(scale),
+            Err(e) => Verdict::Reject(Rejection::Implausible(e)),
         }
     }
 
+    /// Counts a rejected frame and drops the warm start (the next solve must not start from
+    /// anything a bad frame may have touched).
     fn reject(&mut self, r: Rejection) {
         self.stats.frames_rejected += 1;
         match r {
             Rejection::Invalid(_) => self.stats.rejected_invalid += 1,
-            Rejection::SequenceBackwards { .. } => self.stats.rejected_sequence += 1,
+            Rejection::SequenceBackwards { .. } | Rejection::SequenceJump { .. } => {
+                self.stats.rejected_sequence += 1;
+            }
             Rejection::SetupMismatch { .. } => self.stats.rejected_setup += 1,
+            Rejection::OtherSession { .. } => self.stats.rejected_session += 1,
+            Rejection::Implausible(_) => self.stats.rejected_implausible += 1,
         }
         self.stats.last_rejection = Some(r);
+        self.core.reset_warm_start();
         self.log(format_args!(
             "frame rejected ({} so far): {r}",
             self.stats.frames_rejected
@@ -338,15 +409,15 @@ impl<const M: usize> ControllerNode<M> {
                     self.send(CommandKind::Answer, h.session, |c| *c = answer)?;
                     self.stats.answers_repeated += 1;
                 }
-                Verdict::Fresh => {
+                Verdict::Fresh(scale) => {
                     if newest.is_some() {
                         self.stats.frames_skipped += 1;
                     }
-                    newest = Some(sample);
+                    newest = Some((sample, scale));
                 }
             }
         }
-        let Some(sample) = newest else {
+        let Some((sample, scale)) = newest else {
             self.check_deadline()?;
             return Ok(false);
         };
@@ -355,12 +426,14 @@ impl<const M: usize> ControllerNode<M> {
         if self.session != Some(h.session) {
             self.session = Some(h.session);
             self.stats.sessions += 1;
+            self.plausibility.reset();
             self.core.reset_warm_start();
             self.log(format_args!(
                 "host session {:016x}: first frame (sequence {})",
                 h.session, frame.sequence
             ));
         }
+        self.plausibility.accept(scale);
         self.last_sequence = frame.sequence;
         self.have_answer = false;
         self.last_frame_at = Instant::now();
@@ -392,6 +465,7 @@ impl<const M: usize> ControllerNode<M> {
                 // Nothing is sent (the loaned sample returns to the pool): the host times out
                 // and holds, which is what it must do without a valid answer.
                 self.stats.step_errors += 1;
+                self.core.reset_warm_start();
                 self.log(format_args!(
                     "inverse step failed on frame {}: {e}",
                     frame.sequence
@@ -473,7 +547,11 @@ impl<const M: usize> ControllerNode<M> {
                     next += p;
                     let now = Instant::now();
                     if next > now {
-                        self.node.wait(next - now).map_err(dbg)
+                        // `Interrupt` (SIGCONT after a SIGSTOP, …) is not a termination request.
+                        match self.node.wait(next - now) {
+                            Ok(()) | Err(NodeWaitFailure::Interrupt) => Ok(()),
+                            Err(e) => Err(dbg(e)),
+                        }
                     } else {
                         // Overran the tick: restart the schedule from now.
                         next = now;

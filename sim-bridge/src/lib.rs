@@ -21,6 +21,7 @@ pub use iceoryx2;
 
 pub mod controller;
 pub mod payload;
+pub mod plausible;
 pub mod shm;
 pub mod transport;
 

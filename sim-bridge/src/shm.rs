@@ -23,6 +23,7 @@ use crate::payload::{
 };
 use crate::transport::{ExchangeReport, Transport, TransportError};
 use core::time::Duration;
+use iceoryx2::node::NodeWaitFailure;
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
@@ -169,6 +170,32 @@ pub fn cleanup_dead_nodes(node: &Node<Ipc>) -> u64 {
     node.try_cleanup_dead_nodes().cleanups
 }
 
+/// Dead nodes listed now (0 when the list cannot be read).
+fn dead_nodes() -> u64 {
+    let mut n = 0;
+    let _ = Node::<Ipc>::list(Config::global_config(), |state| {
+        if matches!(state, NodeState::Dead(_)) {
+            n += 1;
+        }
+        CallbackProgression::Continue
+    });
+    n
+}
+
+/// Creates a node and removes the resources of dead nodes; returns the node and how many dead
+/// nodes are gone — iceoryx2 already cleans them while it creates a node, so they are counted
+/// before and after, not only by the explicit cleanup.
+pub(crate) fn create_node_cleaning(
+    name: &str,
+    cfg: &BridgeConfig,
+) -> Result<(Node<Ipc>, u64), TransportError> {
+    let before = dead_nodes();
+    let node = create_node(name, cfg)?;
+    let explicit = cleanup_dead_nodes(&node);
+    let gone = before.saturating_sub(dead_nodes());
+    Ok((node, explicit.max(gone)))
+}
+
 /// Opens or creates the frame service of `cfg` (same settings on both sides: 2 publishers so a
 /// restarted host can join before the dead one is cleaned, 2 subscribers, buffer of 2 with
 /// overwrite of the oldest — the controller only ever wants the newest frame). Recovers from a
@@ -196,7 +223,8 @@ pub(crate) fn frame_service_counting<const M: usize>(
         node.service_builder(&name)
             .publish_subscribe::<FramePayload<M>>()
             .user_header::<FrameHeader>()
-            .max_publishers(2)
+            // One host per instance: a second publisher (a stale host, a forger) is refused.
+            .max_publishers(1)
             .max_subscribers(2)
             .history_size(0)
             .subscriber_max_buffer_size(2)
@@ -230,7 +258,8 @@ pub(crate) fn command_service_counting<const M: usize>(
         node.service_builder(&name)
             .publish_subscribe::<CommandPayload<M>>()
             .user_header::<CommandHeader>()
-            .max_publishers(2)
+            // One controller per instance.
+            .max_publishers(1)
             .max_subscribers(2)
             .history_size(0)
             .subscriber_max_buffer_size(8)
@@ -392,8 +421,7 @@ impl<const M: usize> SharedMemoryHost<M> {
     /// # Errors
     /// [`TransportError::Ipc`] when a node, service or port cannot be created.
     pub fn connect(cfg: &BridgeConfig, setup: u64) -> Result<Self, TransportError> {
-        let node = create_node("needle-host", cfg)?;
-        let dead_nodes_cleaned = cleanup_dead_nodes(&node);
+        let (node, dead_nodes_cleaned) = create_node_cleaning("needle-host", cfg)?;
         let mut hung_services_removed = 0;
         let frames = frame_service_counting::<M>(&node, cfg, &mut hung_services_removed)?
             .publisher_builder()
@@ -519,10 +547,12 @@ impl<const M: usize> SharedMemoryHost<M> {
 /// `handle_signals`).
 pub(crate) fn pause(node: &Node<Ipc>, wait: Wait) -> Result<(), TransportError> {
     match wait {
-        Wait::Sleep(d) => node
-            .wait(d)
-            .map_err(dbg)
-            .map_err(ipc_err("termination requested")),
+        // `Interrupt` is any signal that cut the sleep short (SIGCONT after a SIGSTOP, …): only a
+        // termination request (SIGTERM, SIGINT) ends the loop.
+        Wait::Sleep(d) => match node.wait(d) {
+            Ok(()) | Err(NodeWaitFailure::Interrupt) => Ok(()),
+            Err(e) => Err(ipc_err("termination requested")(dbg(e))),
+        },
         Wait::Spin => {
             std::thread::yield_now();
             Ok(())

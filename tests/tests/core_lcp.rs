@@ -165,3 +165,38 @@ fn friction_problems_match_reference() {
         }
     }
 }
+
+/// Regression (issue "trust"): the polish treated a sliding group's axial row as an equality and
+/// reported `converged, residual 0` with λ_a = 5 against its bound μ_n |λ_lat| + r_0 = 0.1.
+#[test]
+fn polish_of_a_sliding_group_respects_the_axial_bound() {
+    let mut w = boxed_zeroed::<[[f64; M]; M]>();
+    for (i, row) in w.iter_mut().enumerate().take(3) {
+        row[i] = 1.0;
+    }
+    let mut delta = [0.0; M];
+    delta[..3].copy_from_slice(&[1.0, 0.0, 5.0]);
+    let mut gs = Box::new(BlockGs::<M>::new());
+    gs.prepare(&w, 3, &[RowGroup::sliding(0, 0.1, 0.0)])
+        .expect("valid problem");
+    let mut lambda = [0.0; M];
+    let params = GsParams {
+        tolerance: 1e-12,
+        max_iterations: 1000,
+        polish: true,
+        ..GsParams::default()
+    };
+    let rep = gs.solve(&w, &delta, &mut lambda, &params);
+    let bound = 0.1 * lambda[0].hypot(lambda[1]);
+    assert!(rep.converged, "{rep:?}");
+    assert!(
+        !rep.polished,
+        "a sliding group is not for the equality polish: {rep:?}"
+    );
+    assert!((lambda[0] - 1.0).abs() < 1e-9 && lambda[1].abs() < 1e-9);
+    assert!(
+        lambda[2].abs() <= bound + 1e-12,
+        "λ_a = {} against the bound {bound}",
+        lambda[2]
+    );
+}

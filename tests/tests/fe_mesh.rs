@@ -141,7 +141,7 @@ fn gmsh_binary_round_trip_gives_the_same_mesh() {
 /// (ignored), and a tetrahedron with negative orientation (reordered).
 #[test]
 fn gmsh_reader_ignores_other_elements_and_handles_sparse_tags() {
-    let text = "$MeshFormat\n4.1 0 8\n$EndMeshFormat\n$Nodes\n2 5 10 50\n0 1 0 1\n50\n9 9 9\n3 1 0 4\n10\n20\n30\n40\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n$EndNodes\n$Elements\n3 4 1 4\n0 1 15 1\n1 50\n2 1 2 1\n2 10 20 30\n3 1 4 1\n4 10 30 20 40\n$EndElements\n";
+    let text = "$MeshFormat\n4.1 0 8\n$EndMeshFormat\n$Nodes\n2 5 10 50\n0 1 0 1\n50\n9 9 9\n3 1 0 4\n10\n20\n30\n40\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n$EndNodes\n$Elements\n3 3 1 4\n0 1 15 1\n1 50\n2 1 2 1\n2 10 20 30\n3 1 4 1\n4 10 30 20 40\n$EndElements\n";
     let m = read_gmsh_bytes(text.as_bytes()).unwrap();
     assert_eq!(m.node_count(), 4, "the unused point node is dropped");
     assert_eq!(m.tet_count(), 1);

@@ -19,7 +19,8 @@
 //!
 //! The stopping test is the largest `|W_ii Δλ_i|` of a sweep relative to the problem scale
 //! (`‖δ‖∞`); running out of iterations is reported, not an error. Optionally, when the problem has
-//! no friction rows, a **polish** solves the equality system of the active set found by GS
+//! only bilateral and unilateral rows (no contact friction, no sliding point, whose rows are
+//! bounded rather than equalities), a **polish** solves the equality system of the active set found by GS
 //! (bilateral rows and unilateral rows with `λ > 0`) by conjugate gradients and updates the active
 //! set primal-dual style until the LCP conditions hold to round-off; the polish result is kept
 //! only if it is feasible, otherwise the GS iterate is returned.
@@ -98,6 +99,7 @@ struct Block {
 pub struct BlockGs<const M: usize> {
     m: usize,
     n_blocks: usize,
+    /// A contact or sliding group is present: rows with bounds, out of the polish's reach.
     frictional: bool,
     blocks: [Block; M],
     /// Per block, at row `start`: packed factors (≤ 6 values per row of the block).

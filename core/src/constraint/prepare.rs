@@ -76,6 +76,9 @@ impl<const M: usize> BlockGs<M> {
                     f[1..11].copy_from_slice(&e.pack());
                 }
                 Some(GroupKind::Sliding) => {
+                    // The axial row is bounded by `μ_n |λ_lat| + r_0`: not an equality, so not
+                    // for the equality polish either.
+                    self.frictional = true;
                     let e = Sym2::new(w[s][s], w[s][s + 1], w[s + 1][s + 1]);
                     f[0..10].copy_from_slice(&e.pack());
                     f[10] = 1.0 / w[s + 2][s + 2];

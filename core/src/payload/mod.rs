@@ -25,7 +25,9 @@ use core::mem::MaybeUninit;
 
 pub use command::{Command, SolverReport, StatusFlags};
 pub use frame::ComplianceFrame;
-pub use validate::{LayoutFault, ValidationError, validate_compliance, validate_groups};
+pub use validate::{
+    LayoutFault, MAX_JOINT_ANGLE, ValidationError, validate_compliance, validate_groups,
+};
 
 /// A versioned payload ([`ComplianceFrame`], [`Command`], and the transports' wrappers of
 /// them): its initial state is all zero with the layout version written, which is what

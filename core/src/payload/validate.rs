@@ -265,7 +265,7 @@ impl<const M: usize, const N: usize> ComplianceFrame<M, N> {
             "insertion_depth",
             core::slice::from_ref(&self.insertion_depth),
         )?;
-        check_finite("q", &self.q)?;
+        check_joints(&self.q)?;
         check_finite("dt", core::slice::from_ref(&self.dt))?;
         if self.dt <= 0.0 {
             return Err(ValidationError::OutOfRange { field: "dt" });
@@ -279,8 +279,23 @@ impl<const M: usize, const N: usize> ComplianceFrame<M, N> {
     }
 }
 
+/// Largest joint angle a frame or a command may carry [rad] (two turns either way: beyond any
+/// revolute joint's range).
+pub const MAX_JOINT_ANGLE: f64 = 4.0 * core::f64::consts::PI;
+
+/// Every joint finite and within ±[`MAX_JOINT_ANGLE`].
+fn check_joints(q: &[f64]) -> Result<(), ValidationError> {
+    check_finite("q", q)?;
+    if q.iter().any(|v| libm::fabs(*v) > MAX_JOINT_ANGLE) {
+        return Err(ValidationError::OutOfRange { field: "q" });
+    }
+    Ok(())
+}
+
 impl<const M: usize, const N: usize> Command<M, N> {
-    /// Checks a received command: version, `m ≤ M`, finite joints, forces and report.
+    /// Checks a received command, every field: version, `m ≤ M`, joints finite and within
+    /// ±[`MAX_JOINT_ANGLE`], finite forces, and a finite report (residual ≥ 0, objectives,
+    /// joint update).
     ///
     /// # Errors
     /// The first problem found.
@@ -288,9 +303,18 @@ impl<const M: usize, const N: usize> Command<M, N> {
         check_version(self.version)?;
         let m = self.m as usize;
         check_capacity(m, M)?;
-        check_finite("q", &self.q)?;
+        check_joints(&self.q)?;
         check_finite("lambda", &self.lambda[..m])?;
-        check_finite("report.delta_q", &self.report.delta_q)?;
+        let r = &self.report;
+        check_finite("report.final_residual", &[r.final_residual])?;
+        if r.final_residual < 0.0 {
+            return Err(ValidationError::OutOfRange {
+                field: "report.final_residual",
+            });
+        }
+        check_finite("report.objective", &r.objective)?;
+        check_finite("report.objective_after", &r.objective_after)?;
+        check_finite("report.delta_q", &r.delta_q)?;
         Ok(())
     }
 }

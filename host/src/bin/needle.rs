@@ -16,7 +16,7 @@ use needle_host::run::{
     ControllerKind, RunError, RunOptions, RunResult, RunSummary, StageTiming, planned_steps, run,
     run_with,
 };
-use needle_host::scene::Scene;
+use needle_host::scene::{MAX_STEPS, Scene};
 use needle_host::setup;
 use needle_host::step::{ROWS, StepReport};
 use std::path::PathBuf;
@@ -51,12 +51,24 @@ enum Command {
         #[arg(long)]
         quick: bool,
         /// Cap on the steps of every run (default: the whole path; 250 with --quick).
-        #[arg(long)]
+        #[arg(long, value_parser = steps_arg)]
         steps: Option<usize>,
         /// No progress on stderr.
         #[arg(long)]
         quiet: bool,
     },
+}
+
+/// A step count: from 1 to the scenes' own limit ([`MAX_STEPS`]).
+fn steps_arg(text: &str) -> Result<usize, String> {
+    let n: usize = text
+        .parse()
+        .map_err(|e| format!("`{text}` is not a step count: {e}"))?;
+    if (1..=MAX_STEPS).contains(&n) {
+        Ok(n)
+    } else {
+        Err(format!("must be between 1 and {MAX_STEPS} (got {n})"))
+    }
 }
 
 /// The scene of a run and its overrides.
@@ -80,8 +92,8 @@ struct OutputArgs {
     /// Output folder (steps.csv, summary.json, VTK files); none: print only.
     #[arg(long)]
     out: Option<PathBuf>,
-    /// Number of steps (default: to the end of the path).
-    #[arg(long)]
+    /// Number of steps (default: to the end of the path; at most 10 000 000).
+    #[arg(long, value_parser = steps_arg)]
     steps: Option<usize>,
     /// No progress bar.
     #[arg(long)]
@@ -174,17 +186,28 @@ fn with_progress<R>(
     f: impl FnOnce(&mut dyn FnMut(&StepReport)) -> R,
 ) -> R {
     let total = out.steps.unwrap_or_else(|| planned_steps(scene)) as u64;
+    // A spinner while the scene is set up (a large mesh takes a while), then the step bar.
     let bar = if out.quiet {
         ProgressBar::hidden()
     } else {
-        ProgressBar::new(total)
+        ProgressBar::new_spinner()
     };
-    bar.set_style(
-        ProgressStyle::with_template("{elapsed_precise} [{bar:40}] {pos}/{len} steps  {msg}")
-            .unwrap_or_else(|_| ProgressStyle::default_bar())
-            .progress_chars("=> "),
-    );
+    bar.set_message("setting up: mesh, FE models, first factorisation");
+    bar.enable_steady_tick(Duration::from_millis(200));
+    let mut stepping = false;
     let result = f(&mut |r: &StepReport| {
+        if !stepping {
+            stepping = true;
+            bar.disable_steady_tick();
+            bar.set_length(total);
+            bar.set_style(
+                ProgressStyle::with_template(
+                    "{elapsed_precise} [{bar:40}] {pos}/{len} steps  {msg}",
+                )
+                .unwrap_or_else(|_| ProgressStyle::default_bar())
+                .progress_chars("=> "),
+            );
+        }
         bar.set_position(r.step as u64 + 1);
         bar.set_message(format!(
             "depth {:5.1} mm  error {:6.3} mm",
@@ -193,6 +216,15 @@ fn with_progress<R>(
     });
     bar.finish_and_clear();
     result
+}
+
+/// A length with 3 decimals, or `—` when there is none (NaN: the tip never entered the gel).
+fn mm3(v: f64) -> String {
+    if v.is_nan() {
+        "—".to_owned()
+    } else {
+        format!("{v:.3}")
+    }
 }
 
 /// Prints the summary of a run (exit code by its outcome: 0 reached, 3 stopped early, 4 missed
@@ -243,22 +275,22 @@ fn print_text(s: &RunSummary) {
         }
     );
     println!(
-        "tracking error inside the gel: mean {:.3} mm, max {:.3} mm, final (to the path's end) {:.3} mm (depth {:.1} mm, puncture at step {})",
-        s.e_mean_mm,
-        s.e_max_mm,
+        "tracking error inside the gel: mean {} mm, max {} mm, final (to the path's end) {:.3} mm (depth {:.1} mm, puncture at step {})",
+        mm3(s.e_mean_mm),
+        mm3(s.e_max_mm),
         s.e_final_mm,
         s.final_depth_mm,
         s.puncture_step.map_or("—".to_string(), |k| k.to_string())
     );
     println!(
-        "outcome: {} · distance to the path's end {:.3} mm (last step's error {:.3} mm) · reached within 1 mm at step {} of {} nominal · path deviation mean {:.3} mm, max {:.3} mm",
+        "outcome: {} · distance to the path's end {:.3} mm (last step's error {:.3} mm) · reached within 1 mm at step {} of {} nominal · path deviation mean {} mm, max {} mm",
         s.outcome.name(),
         s.e_final_mm,
         s.e_last_mm,
         s.steps_to_target.map_or("—".to_string(), |k| k.to_string()),
         s.steps_nominal,
-        s.path_deviation_mean_mm,
-        s.path_deviation_max_mm,
+        mm3(s.path_deviation_mean_mm),
+        mm3(s.path_deviation_max_mm),
     );
     for c in &s.clearances {
         println!(
@@ -338,6 +370,10 @@ fn report_cmd(opts: &ReportOptions) -> ExitCode {
 }
 
 fn run_cmd(a: RunArgs) -> ExitCode {
+    if a.vtk_every.is_some() && a.output.out.is_none() {
+        eprintln!("error: --vtk-every writes VTK files into the --out folder: give --out DIR");
+        return ExitCode::from(2);
+    }
     let scene = match scene_of(&a.scene) {
         Ok(s) => s,
         Err(code) => return code,
@@ -422,6 +458,7 @@ fn serve_cmd(a: ServeArgs) -> ExitCode {
 }
 
 fn main() -> ExitCode {
+    quiet_broken_pipe();
     match Cli::parse().command {
         Command::Report {
             out,
@@ -436,5 +473,14 @@ fn main() -> ExitCode {
         }),
         Command::Run(a) => run_cmd(a),
         Command::Serve(a) => serve_cmd(a),
+    }
+}
+
+/// A closed standard output (`needle run --json | head -1`) ends the process quietly, as for
+/// any Unix filter, instead of a panic in `println!` (Rust ignores SIGPIPE by default).
+fn quiet_broken_pipe() {
+    // SAFETY: restoring a signal's default disposition at start-up, before any thread exists.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
 }

@@ -36,7 +36,19 @@ pub enum GmshError {
     },
     /// The mesh read is invalid.
     Mesh(MeshError),
+    /// A section's header count differs from what the section holds.
+    CountMismatch {
+        /// `$Nodes` or `$Elements`.
+        section: &'static str,
+        /// The header's count.
+        header: u64,
+        /// What the blocks hold.
+        found: u64,
+    },
 }
+
+/// Largest Gmsh file read [bytes] (1 GiB: about 20 million nodes in ASCII).
+pub const MAX_FILE_BYTES: u64 = 1 << 30;
 
 impl fmt::Display for GmshError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
@@ -55,6 +67,14 @@ impl fmt::Display for GmshError {
                 )
             }
             Self::Mesh(e) => write!(f, "gmsh mesh is invalid: {e}"),
+            Self::CountMismatch {
+                section,
+                header,
+                found,
+            } => write!(
+                f,
+                "gmsh {section} header counts {header} entries but its blocks hold {found}"
+            ),
         }
     }
 }
@@ -80,8 +100,36 @@ impl From<std::io::Error> for GmshError {
 /// # Errors
 /// [`GmshError`] on I/O, parse, missing data or an invalid mesh.
 pub fn read_gmsh(path: impl AsRef<Path>) -> Result<TetMesh, GmshError> {
-    let bytes = std::fs::read(path)?;
+    let bytes = crate::bounded_read::read_bounded(path.as_ref(), MAX_FILE_BYTES)?;
     read_gmsh_bytes(&bytes)
+}
+
+/// The header counts of the node and element sections against what their blocks hold.
+fn check_counts(file: &mshio::MshFile<u64, i32, f64>) -> Result<(), GmshError> {
+    let check = |section, header: u64, found: u64| {
+        if header == found {
+            Ok(())
+        } else {
+            Err(GmshError::CountMismatch {
+                section,
+                header,
+                found,
+            })
+        }
+    };
+    if let Some(n) = &file.data.nodes {
+        let found = n.node_blocks.iter().map(|b| b.nodes.len() as u64).sum();
+        check("$Nodes", n.num_nodes, found)?;
+    }
+    if let Some(e) = &file.data.elements {
+        let found = e
+            .element_blocks
+            .iter()
+            .map(|b| b.elements.len() as u64)
+            .sum();
+        check("$Elements", e.num_elements, found)?;
+    }
+    Ok(())
 }
 
 /// Reads a Gmsh 4.1 tetrahedral mesh (ASCII or binary) from memory; see [`read_gmsh`].
@@ -89,7 +137,8 @@ pub fn read_gmsh(path: impl AsRef<Path>) -> Result<TetMesh, GmshError> {
 /// # Errors
 /// [`GmshError`] on parse, missing data or an invalid mesh.
 pub fn read_gmsh_bytes(bytes: &[u8]) -> Result<TetMesh, GmshError> {
-    let file = mshio::parse_msh_bytes(bytes).map_err(|e| GmshError::Parse(format!("{e}")))?;
+    let file = mshio::parse_msh_bytes(bytes).map_err(|e| GmshError::Parse(parse_message(&e)))?;
+    check_counts(&file)?;
     let nodes = file.data.nodes.as_ref().ok_or(GmshError::NoNodes)?;
     // Node tags and positions in file order.
     let mut file_nodes: Vec<(u64, Vector3<f64>)> = Vec::new();
@@ -168,6 +217,17 @@ pub fn read_gmsh_bytes(bytes: &[u8]) -> Result<TetMesh, GmshError> {
         return Err(GmshError::NoTetrahedra);
     }
     TetMesh::try_new(out_nodes, tets).map_err(GmshError::Mesh)
+}
+
+/// The first line of a parser error (its trace and the hex dump of the input are dropped).
+fn parse_message(e: &impl fmt::Display) -> String {
+    let text = e.to_string();
+    let line = text
+        .lines()
+        .map(str::trim)
+        .find(|l| !l.is_empty())
+        .unwrap_or("");
+    line.chars().take(200).collect()
 }
 
 /// Writes `mesh` as a Gmsh 4.1 ASCII file (one volume entity, node tags `1..=n`, element tags

@@ -68,6 +68,17 @@ impl TetMesh {
         Ok(mesh)
     }
 
+    /// The nodes' bounding box `(min, max)` [mm] (infinite, inverted, for a mesh without nodes).
+    pub fn bounds(&self) -> (Vector3<f64>, Vector3<f64>) {
+        self.nodes.iter().fold(
+            (
+                Vector3::repeat(f64::INFINITY),
+                Vector3::repeat(f64::NEG_INFINITY),
+            ),
+            |(lo, hi), p| (lo.inf(p), hi.sup(p)),
+        )
+    }
+
     /// Number of nodes.
     pub fn node_count(&self) -> usize {
         self.nodes.len()

@@ -62,6 +62,19 @@ pub enum MeshError {
         /// Index of the node.
         node: usize,
     },
+    /// Two elements sharing a face lie on the same side of it: the mesh folds over itself there
+    /// (a node moved through its neighbours).
+    TangledElement {
+        /// Index of the later element.
+        element: usize,
+        /// The element on the same side of their shared face.
+        neighbour: usize,
+    },
+    /// A face is shared by more than two elements (the mesh is not a manifold volume there).
+    OvershareFace {
+        /// Index of the third element on the face.
+        element: usize,
+    },
 }
 
 impl fmt::Display for MeshError {
@@ -100,6 +113,14 @@ impl fmt::Display for MeshError {
                 )
             }
             Self::UnreferencedNode { node } => write!(f, "node {node} is used by no element"),
+            Self::TangledElement { element, neighbour } => write!(
+                f,
+                "element {element} overlaps element {neighbour} (both on the same side of their shared face: the mesh is tangled)"
+            ),
+            Self::OvershareFace { element } => write!(
+                f,
+                "element {element} shares a face already shared by two other elements"
+            ),
         }
     }
 }
@@ -175,6 +196,41 @@ impl TetMesh {
         }
         if let Some(node) = used.iter().position(|u| !u) {
             return Err(MeshError::UnreferencedNode { node });
+        }
+        self.check_folds()
+    }
+
+    /// Every interior face has its two elements on opposite sides (a positively oriented mesh
+    /// can still fold over itself: each element positive, their union overlapping).
+    fn check_folds(&self) -> Result<(), MeshError> {
+        const FACES: [[usize; 3]; 4] = [[1, 2, 3], [0, 2, 3], [0, 1, 3], [0, 1, 2]];
+        let mut faces: std::collections::HashMap<[usize; 3], usize> =
+            std::collections::HashMap::with_capacity(2 * self.tets.len());
+        for (element, t) in self.tets.iter().enumerate() {
+            for (opposite, f) in FACES.iter().enumerate() {
+                let mut key = f.map(|i| t[i]);
+                key.sort_unstable();
+                let Some(&neighbour) = faces.get(&key) else {
+                    faces.insert(key, element);
+                    continue;
+                };
+                if neighbour == usize::MAX {
+                    return Err(MeshError::OvershareFace { element });
+                }
+                faces.insert(key, usize::MAX);
+                let p = key.map(|v| self.nodes[v]);
+                let side = |apex: usize| {
+                    super::signed_volume(&p[0], &p[1], &p[2], &self.nodes[apex]).signum()
+                };
+                let other = self.tets[neighbour]
+                    .iter()
+                    .copied()
+                    .find(|v| !key.contains(v))
+                    .unwrap_or(key[0]);
+                if side(t[opposite]) == side(other) {
+                    return Err(MeshError::TangledElement { element, neighbour });
+                }
+            }
         }
         Ok(())
     }

@@ -6,7 +6,7 @@ use crate::run::RunSummary;
 use std::path::Path;
 
 /// The columns of `runs.csv`.
-const RUNS_HEADER: [&str; 41] = [
+const RUNS_HEADER: [&str; 46] = [
     "run",
     "scene",
     "controller",
@@ -25,6 +25,11 @@ const RUNS_HEADER: [&str; 41] = [
     "e_mean_mm",
     "e_max_mm",
     "e_final_mm",
+    "path_deviation_mean_mm",
+    "path_deviation_max_mm",
+    "steps_to_target",
+    "steps_nominal",
+    "outcome",
     "final_depth_mm",
     "clearance_min_mm",
     "clearance_min_obstacle",
@@ -72,6 +77,11 @@ fn summary_fields(r: &ReportRun, s: &RunSummary) -> Vec<String> {
         n(s.e_mean_mm),
         n(s.e_max_mm),
         n(s.e_final_mm),
+        n(s.path_deviation_mean_mm),
+        n(s.path_deviation_max_mm),
+        s.steps_to_target.map_or(String::new(), |k| k.to_string()),
+        s.steps_nominal.to_string(),
+        s.outcome.name().to_owned(),
         n(s.final_depth_mm),
         n(cmin),
         cname.to_owned(),

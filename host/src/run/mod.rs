@@ -25,10 +25,12 @@ pub mod naive;
 pub mod outputs;
 pub mod remote;
 pub mod summary;
+pub mod watch;
 
 pub use crate::setup::planned_steps;
 pub use metrics::Outcome;
 pub use summary::{Clearance, RunSummary, STRAIN_EVERY, StageTiming, Timing};
+pub use watch::StopReason;
 
 use crate::error::{SetupError, chain};
 use crate::open_loop::OpenLoop;
@@ -44,6 +46,7 @@ use serde::Serialize;
 use std::path::PathBuf;
 use std::time::Duration;
 use summary::{Ending, Statistics};
+use watch::Watchdog;
 
 /// Which controller drives the robot.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
@@ -212,7 +215,8 @@ pub fn run_setup(
         ControllerKind::Naive => {
             let (joints, stop) = naive::naive_trajectory(&world, &params.insertion, steps);
             let replay = OpenLoop::new(robot, inverse, joints);
-            (Some(replay), stop.map(|e| chain(&e)))
+            let stop = stop.map(|e| (e.step(), StopReason::IkFailed { message: chain(&e) }));
+            (Some(replay), stop)
         }
     };
     let n = open_loop.as_ref().map_or(steps, |o| o.joints.len());
@@ -223,21 +227,27 @@ pub fn run_setup(
     let mut remote = Remote::new(core, opts.period, opts.give_up_after);
     let mut pipeline = Pipeline::new(&world);
     let mut stats = Statistics::new(&world, n);
-    let mut reports = Vec::with_capacity(n);
+    let watchdog = Watchdog::new(&world);
+    // Grown step by step: `steps` may be far more than the run will reach.
+    let mut reports = Vec::new();
     for k in 0..n {
         remote.pace(world.c);
         let r = match pipeline.step(&mut world, &params, &mut remote) {
-            Ok(r) if r.error.is_finite() && r.tip.iter().all(|v| v.is_finite()) => r,
-            Ok(_) => {
-                stopped = Some(format!("step {k}: the state became non-finite"));
-                break;
-            }
+            Ok(r) => r,
             Err(e) => {
-                stopped = Some(remote.why_stopped(k, &e));
+                stopped = Some((k, remote.why_stopped(&e)));
                 break;
             }
         };
+        if let Some(why) = watchdog.after_step(&world, &r) {
+            stopped = Some((k, why));
+            break;
+        }
         stats.step(&world, &r)?;
+        if let Some(why) = stats.sampled().and_then(|st| watchdog.strain(&st)) {
+            stopped = Some((k, why));
+            break;
+        }
         for f in &mut files {
             f.step(&world, &r)?;
         }

@@ -12,7 +12,7 @@ use needle_core::payload::JOINTS;
 #[non_exhaustive]
 pub enum NaiveStop {
     /// The rigid IK stopped away from the pose.
-    #[error("step {step}: rigid IK out of reach ({distance:.3} mm away)")]
+    #[error("rigid IK out of reach ({distance:.3} mm away)")]
     OutOfReach {
         /// The step.
         step: usize,
@@ -20,7 +20,7 @@ pub enum NaiveStop {
         distance: f64,
     },
     /// The rigid IK failed.
-    #[error("step {step}: rigid IK failed")]
+    #[error("rigid IK failed")]
     Failed {
         /// The step.
         step: usize,
@@ -28,6 +28,15 @@ pub enum NaiveStop {
         #[source]
         source: IkError,
     },
+}
+
+impl NaiveStop {
+    /// The step the IK could not reach.
+    pub fn step(&self) -> usize {
+        match self {
+            Self::OutOfReach { step, .. } | Self::Failed { step, .. } => *step,
+        }
+    }
 }
 
 /// The naive baseline's joints from `world`'s start: for each of `steps` steps, IK of a rigid
@@ -40,7 +49,9 @@ pub fn naive_trajectory(
 ) -> (Vec<[f64; JOINTS]>, Option<NaiveStop>) {
     let path = &world.path;
     let mut q = world.q;
-    let mut out = Vec::with_capacity(steps);
+    // Grown step by step (`steps` may be far more than the path needs).
+    let mut out = Vec::new();
+
     let ik = IkParams {
         max_iterations: 2000,
         ..IkParams::default()

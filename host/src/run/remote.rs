@@ -4,6 +4,7 @@
 //! advance the target, says so on stderr, and hands the same frame over again until an answer
 //! arrives or the give-up time has passed.
 
+use super::StopReason;
 use crate::error::{SimError, chain};
 use crate::step::ROWS;
 use needle_bridge::{ExchangeReport, Transport, TransportError};
@@ -60,11 +61,13 @@ impl<'a> Remote<'a> {
 }
 
 impl Remote<'_> {
-    /// Why step `k` failed with `e`, as the run's summary says it.
-    pub fn why_stopped(&self, k: usize, e: &SimError) -> String {
+    /// Why a step failed with `e`, as the run's summary says it.
+    pub fn why_stopped(&self, e: &SimError) -> StopReason {
         match self.gave_up {
-            Some(w) => format!("step {k}: no command for {:.1} s", w.as_secs_f64()),
-            None => format!("step {k}: {}", chain(e)),
+            Some(w) => StopReason::NoCommand {
+                waited_s: w.as_secs_f64(),
+            },
+            None => StopReason::StepFailed { message: chain(e) },
         }
     }
 }

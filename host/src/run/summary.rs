@@ -2,7 +2,9 @@
 //! gathered step by step by [`Statistics`] and written once at the end.
 
 use super::metrics::{Outcome, PathMetrics};
-use super::{ControllerKind, Observer};
+
+use super::{ControllerKind, Observer, StopReason};
+use crate::fem::tetra::StrainStats;
 use crate::output::OutputError;
 use crate::setup::Plan;
 use crate::step::StepReport;
@@ -80,8 +82,10 @@ pub struct RunSummary {
     pub steps_planned: usize,
     /// Whether the run reached its last step.
     pub completed: bool,
-    /// Why it stopped early.
+    /// Why it stopped early: `step k: ` and the reason.
     pub stopped: Option<String>,
+    /// Why it stopped early, typed (a divergence, a failed step, no command, the baseline's IK).
+    pub stop_reason: Option<StopReason>,
     /// Step at which the tip punctured the surface.
     pub puncture_step: Option<usize>,
     /// Mean tracking error over the steps with the tip inside the gel [mm].
@@ -151,6 +155,7 @@ pub struct Statistics {
     max_inverted: usize,
     last_step: usize,
     path: PathMetrics,
+    sampled: Option<StrainStats>,
 }
 
 impl Statistics {
@@ -162,7 +167,13 @@ impl Statistics {
             max_inverted: 0,
             last_step: steps.saturating_sub(1),
             path: PathMetrics::default(),
+            sampled: None,
         }
+    }
+
+    /// The strain sample of the last step (none when it was not sampled).
+    pub fn sampled(&self) -> Option<StrainStats> {
+        self.sampled
     }
 }
 
@@ -172,8 +183,10 @@ impl Observer for Statistics {
             *m = m.min(c);
         }
         self.path.step(world, r);
+        self.sampled = None;
         if (r.step + 1).is_multiple_of(STRAIN_EVERY) || r.step == self.last_step {
             let st = world.gel.tetra().strain_stats(world.gel.positions());
+            self.sampled = Some(st);
             self.max_strain = self.max_strain.max(st.max_strain);
             self.max_inverted = self.max_inverted.max(st.inverted);
         }
@@ -187,8 +200,8 @@ pub struct Ending<'a> {
     pub controller: ControllerKind,
     /// Steps planned.
     pub steps_planned: usize,
-    /// Why it stopped early.
-    pub stopped: Option<String>,
+    /// The step at which the run stopped early, and why.
+    pub stopped: Option<(usize, StopReason)>,
     /// Every step's report.
     pub reports: &'a [StepReport],
     /// Holds and time held [ms].
@@ -256,7 +269,11 @@ impl Statistics {
             steps: reports.len(),
             steps_planned: end.steps_planned,
             completed: reports.len() == end.steps_planned && end.stopped.is_none(),
-            stopped: end.stopped,
+            stopped: end
+                .stopped
+                .as_ref()
+                .map(|(k, why)| format!("step {k}: {why}")),
+            stop_reason: end.stopped.map(|(_, why)| why),
             puncture_step: reports.iter().find(|r| r.punctured_now).map(|r| r.step),
             e_mean_mm: e_mean,
             e_max_mm: inside.iter().map(|r| r.error).fold(f64::NAN, f64::max),

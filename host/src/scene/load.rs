@@ -60,17 +60,23 @@ impl Scene {
         Ok(scene)
     }
 
+    /// Largest scene file read [bytes].
+    pub const MAX_SCENE_BYTES: u64 = 1 << 20;
+
     /// Reads, parses and validates a scene file. Relative mesh paths are resolved against its folder.
     ///
     /// # Errors
     /// [`SceneError`] for an unreadable file or any error of [`Scene::from_toml_str`].
     pub fn load(path: &Path) -> Result<Self, SceneError> {
         let file = path.display().to_string();
-        let text = std::fs::read_to_string(path).map_err(|e| SceneError {
+        let cannot = |e: &dyn std::fmt::Display| SceneError {
             file: file.clone(),
             field: String::new(),
             reason: format!("cannot read: {e}"),
-        })?;
+        };
+        let bytes = crate::bounded_read::read_bounded(path, Self::MAX_SCENE_BYTES)
+            .map_err(|e| cannot(&e))?;
+        let text = String::from_utf8(bytes).map_err(|e| cannot(&e))?;
         let mut scene = Self::from_toml_str(&text, &file)?;
         if let (Some(mesh), Some(dir)) = (scene.gel.mesh.as_mut(), path.parent())
             && mesh.is_relative()
@@ -96,10 +102,17 @@ impl Scene {
     /// ```
     pub fn open(arg: &str) -> Result<Self, SceneError> {
         let p = Path::new(arg);
-        if p.exists() || arg.ends_with(".toml") {
+        // A file wins; an embedded name wins over a folder of the same name (`--out simple`).
+        if p.is_file() || arg.ends_with(".toml") {
             return Self::load(p);
         }
-        Self::builtin(arg).ok_or_else(|| SceneError {
+        if let Some(scene) = Self::builtin(arg) {
+            return Ok(scene);
+        }
+        if p.exists() {
+            return Self::load(p);
+        }
+        Err(SceneError {
             file: arg.to_owned(),
             field: String::new(),
             reason: format!(

@@ -21,7 +21,8 @@ mod validate;
 use defaults::*;
 pub use load::SceneError;
 
-pub use path::{PathError, SampledPath};
+pub use path::{MAX_FORMULA_CHARS, MAX_PATH_POINTS, PathError, SampledPath};
+pub use validate::{MAX_OBSTACLES, MAX_STEPS};
 
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;

@@ -39,10 +39,23 @@ fn spec_points(spec: &PathSpec) -> Result<Vec<Vector3<f64>>, PathError> {
             "give either `points` or `formula`, not both",
         )),
         (None, None) => Err(PathError::new("path", "give `points` or `formula`")),
+        (Some(p), None) if p.len() > MAX_PATH_POINTS => Err(PathError::new(
+            "path.points",
+            format!(
+                "{} points, more than the limit of {MAX_PATH_POINTS}",
+                p.len()
+            ),
+        )),
         (Some(p), None) => Ok(p.iter().map(|p| Vector3::from(*p)).collect()),
         (None, Some(f)) => {
-            if spec.samples < 2 {
-                return Err(PathError::new("path.samples", "must be at least 2"));
+            if !(2..=MAX_PATH_POINTS).contains(&spec.samples) {
+                return Err(PathError::new(
+                    "path.samples",
+                    format!(
+                        "must be between 2 and {MAX_PATH_POINTS} (got {})",
+                        spec.samples
+                    ),
+                ));
             }
             let x = eval_formula("path.formula.x", &f.x, spec.samples)?;
             let y = eval_formula("path.formula.y", &f.y, spec.samples)?;
@@ -88,13 +101,42 @@ pub struct SampledPath {
     pub entry_tangent: Vector3<f64>,
 }
 
+/// Most vertices of a path (`path.samples`, or the length of `path.points`).
+pub const MAX_PATH_POINTS: usize = 100_000;
+
+/// Longest formula of a path coordinate [characters].
+pub const MAX_FORMULA_CHARS: usize = 1000;
+
+/// The start of a long text, for a message.
+fn excerpt(text: &str) -> String {
+    if text.chars().count() <= 60 {
+        text.to_owned()
+    } else {
+        format!("{}…", text.chars().take(60).collect::<String>())
+    }
+}
+
+/// The first line of a parser's message, shortened.
+fn first_line(e: &impl fmt::Display) -> String {
+    let text = e.to_string();
+    excerpt(text.lines().next().unwrap_or(""))
+}
+
 fn eval_formula(field: &str, text: &str, samples: usize) -> Result<Vec<f64>, PathError> {
     let err = |reason: String| PathError::new(field, reason);
-    let expr = exmex::parse::<f64>(text).map_err(|e| err(format!("cannot parse `{text}`: {e}")))?;
+    let n = text.chars().count();
+    if n > MAX_FORMULA_CHARS {
+        return Err(err(format!(
+            "{n} characters, more than the limit of {MAX_FORMULA_CHARS}"
+        )));
+    }
+    let shown = excerpt(text);
+    let expr = exmex::parse::<f64>(text)
+        .map_err(|e| err(format!("cannot parse `{shown}`: {}", first_line(&e))))?;
     let vars = expr.var_names().to_vec();
     if vars.iter().any(|v| v != "s") {
         return Err(err(format!(
-            "`{text}` uses variables {vars:?}; only `s` (0 at the entry, 1 at the end) is defined"
+            "`{shown}` uses variables {vars:?}; only `s` (0 at the entry, 1 at the end) is defined"
         )));
     }
     (0..samples)
@@ -105,11 +147,16 @@ fn eval_formula(field: &str, text: &str, samples: usize) -> Result<Vec<f64>, Pat
             } else {
                 expr.eval(&[s])
             }
-            .map_err(|e| err(format!("cannot evaluate `{text}` at s = {s}: {e}")))?;
+            .map_err(|e| {
+                err(format!(
+                    "cannot evaluate `{shown}` at s = {s}: {}",
+                    first_line(&e)
+                ))
+            })?;
             if v.is_finite() {
                 Ok(v)
             } else {
-                Err(err(format!("`{text}` is not finite at s = {s}")))
+                Err(err(format!("`{shown}` is not finite at s = {s}")))
             }
         })
         .collect()

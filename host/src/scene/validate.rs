@@ -1,4 +1,7 @@
 //! Physical validation of a parsed scene: every rejected value names its field and the reason.
+//! One check per topic (robot, gel, needle, contact and inverse tuning, solver, path and
+//! insertion), each value against its physical meaning and a range where a number far outside
+//! it can only be a typo or an attack (a needle of 10³⁰⁰ MPa, a time step of 10⁻³⁰⁰ s).
 
 use super::{PoseSpec, SampledPath, Scene};
 
@@ -34,6 +37,27 @@ fn non_negative(field: &str, v: f64, unit: &str) -> Check {
     }
 }
 
+/// `lo ≤ v ≤ hi` (and finite).
+fn within(field: &str, v: f64, lo: f64, hi: f64, unit: &str) -> Check {
+    finite(field, v)?;
+    if v >= lo && v <= hi {
+        Ok(())
+    } else if lo > 0.0 && v <= 0.0 {
+        fail(field, format!("must be > 0 {unit} (got {v})"))
+    } else {
+        fail(
+            field,
+            format!("must lie in [{lo:e}, {hi:e}] {unit} (got {v:e})"),
+        )
+    }
+}
+
+/// Most steps of a run (10⁷: a kilometre of path at 0.1 mm per step).
+pub const MAX_STEPS: usize = 10_000_000;
+
+/// Most obstacles of a scene.
+pub const MAX_OBSTACLES: usize = 1000;
+
 fn pose(field: &str, p: &PoseSpec) -> Check {
     for (i, v) in p.translation.iter().enumerate() {
         finite(&format!("{field}.translation[{i}]"), *v)?;
@@ -42,6 +66,20 @@ fn pose(field: &str, p: &PoseSpec) -> Check {
         finite(&format!("{field}.rpy[{i}]"), *v)?;
     }
     Ok(())
+}
+
+fn poisson(field: &str, v: f64) -> Check {
+    finite(field, v)?;
+    if v > -1.0 && v < 0.5 {
+        Ok(())
+    } else {
+        fail(field, format!("must lie in (-1, 0.5) (got {v})"))
+    }
+}
+
+/// From a foam to ten times osmium [t/mm³].
+fn density(field: &str, v: f64) -> Check {
+    within(field, v, 1e-12, 2e-7, "[t/mm³]")
 }
 
 fn six(field: &str, v: &Option<Vec<f64>>) -> Check {
@@ -68,7 +106,16 @@ impl Scene {
         if self.name.trim().is_empty() {
             return fail("name", "must not be empty");
         }
-        // Robot.
+        self.validate_robot()?;
+        self.validate_gel()?;
+        self.validate_needle()?;
+        self.validate_interaction()?;
+        self.validate_inverse()?;
+        self.validate_solver()?;
+        self.validate_path_and_insertion()
+    }
+
+    fn validate_robot(&self) -> Check {
         let r = &self.robot;
         match &r.dh {
             Some(rows) if rows.len() != 6 => {
@@ -102,6 +149,12 @@ impl Scene {
         }
         pose("robot.base", &r.base)?;
         pose("robot.tool", &r.tool)?;
+        self.validate_joints()?;
+        within("robot.dt", r.dt, 1e-6, 10.0, "[s]")
+    }
+
+    fn validate_joints(&self) -> Check {
+        let r = &self.robot;
         six("robot.joint_min_deg", &r.joint_min_deg)?;
         six("robot.joint_max_deg", &r.joint_max_deg)?;
         six("robot.speed_limit_deg_s", &r.speed_limit_deg_s)?;
@@ -121,7 +174,6 @@ impl Scene {
                 "must be > 0 [deg/s]",
             );
         }
-        positive("robot.dt", r.dt, "[s]")?;
         six("robot.start_joints_deg", &r.start_joints_deg)?;
         if let Some(q) = &r.start_joints_deg {
             let chain = self.robot();
@@ -135,8 +187,10 @@ impl Scene {
                 }
             }
         }
+        Ok(())
+    }
 
-        // Gel.
+    fn validate_gel(&self) -> Check {
         let g = &self.gel;
         match (&g.box_mesh, &g.mesh) {
             (Some(_), Some(_)) => return fail("gel", "give either `box` or `mesh`, not both"),
@@ -161,15 +215,10 @@ impl Scene {
             }
             (None, Some(_)) => {}
         }
-        positive("gel.young_modulus", g.young_modulus, "[MPa]")?;
-        finite("gel.poisson_ratio", g.poisson_ratio)?;
-        if !(g.poisson_ratio > -1.0 && g.poisson_ratio < 0.5) {
-            return fail(
-                "gel.poisson_ratio",
-                format!("must lie in (-1, 0.5) (got {})", g.poisson_ratio),
-            );
-        }
-        positive("gel.density", g.density, "[t/mm³]")?;
+        // 1 Pa to 10 GPa: from the softest gel to bone.
+        within("gel.young_modulus", g.young_modulus, 1e-6, 1e4, "[MPa]")?;
+        poisson("gel.poisson_ratio", g.poisson_ratio)?;
+        density("gel.density", g.density)?;
         if let Some(z) = g.fixed.below_z {
             finite("gel.fixed.below_z", z)?;
         }
@@ -179,10 +228,12 @@ impl Scene {
                 "no node is fixed: the gel would float away (give `below_z` or `nodes`)",
             );
         }
+        Ok(())
+    }
 
-        // Needle.
+    fn validate_needle(&self) -> Check {
         let n = &self.needle;
-        positive("needle.length", n.length, "[mm]")?;
+        within("needle.length", n.length, 1e-3, 1e4, "[mm]")?;
         positive("needle.diameter", n.diameter, "[mm]")?;
         if n.diameter >= n.length {
             return fail(
@@ -190,35 +241,67 @@ impl Scene {
                 "must be smaller than the length (a needle is slender)",
             );
         }
-        positive("needle.young_modulus", n.young_modulus, "[MPa]")?;
-        finite("needle.poisson_ratio", n.poisson_ratio)?;
-        if !(n.poisson_ratio > -1.0 && n.poisson_ratio < 0.5) {
+        // Up to 10 TPa (ten times diamond).
+        within("needle.young_modulus", n.young_modulus, 1e-6, 1e7, "[MPa]")?;
+        let ratio = n.young_modulus / self.gel.young_modulus;
+        if !(1.0..=1e12).contains(&ratio) {
             return fail(
-                "needle.poisson_ratio",
-                format!("must lie in (-1, 0.5) (got {})", n.poisson_ratio),
+                "needle.young_modulus",
+                format!(
+                    "{:e} MPa is {ratio:.1e} times the gel's {:e} MPa: a needle must be stiffer than the gel, by at most 10¹²",
+                    n.young_modulus, self.gel.young_modulus
+                ),
             );
         }
-        positive("needle.density", n.density, "[t/mm³]")?;
+        poisson("needle.poisson_ratio", n.poisson_ratio)?;
+        density("needle.density", n.density)?;
         if !(1..=1000).contains(&n.beams) {
             return fail(
                 "needle.beams",
                 format!("must be between 1 and 1000 (got {})", n.beams),
             );
         }
+        Ok(())
+    }
 
-        // Interaction.
+    fn validate_interaction(&self) -> Check {
         let i = &self.interaction;
-        positive("interaction.puncture_force", i.puncture_force, "[N]")?;
-        non_negative("interaction.surface_friction", i.surface_friction, "")?;
-        non_negative("interaction.shaft_friction", i.shaft_friction, "")?;
-        non_negative("interaction.shaft_resistance", i.shaft_resistance, "[N]")?;
+        within(
+            "interaction.puncture_force",
+            i.puncture_force,
+            1e-9,
+            1e4,
+            "[N]",
+        )?;
+        within(
+            "interaction.surface_friction",
+            i.surface_friction,
+            0.0,
+            10.0,
+            "",
+        )?;
+        within(
+            "interaction.shaft_friction",
+            i.shaft_friction,
+            0.0,
+            10.0,
+            "",
+        )?;
+        within(
+            "interaction.shaft_resistance",
+            i.shaft_resistance,
+            0.0,
+            1e4,
+            "[N]",
+        )?;
         positive(
             "interaction.constraint_spacing",
             i.constraint_spacing,
             "[mm]",
-        )?;
+        )
+    }
 
-        // Inverse.
+    fn validate_inverse(&self) -> Check {
         let v = &self.inverse;
         positive("inverse.delta_q", v.delta_q, "[rad]")?;
         if v.delta_q > 0.5 {
@@ -234,29 +317,45 @@ impl Scene {
         non_negative("inverse.damping", v.damping, "[mm]")?;
         non_negative("inverse.angle_weight", v.angle_weight, "[mm/rad]")?;
         non_negative("inverse.tolerance", v.tolerance, "[mm²]")?;
-        positive("inverse.max_base_step", v.max_base_step, "[mm]")?;
+        positive("inverse.max_base_step", v.max_base_step, "[mm]")
+    }
 
-        // Solver.
+    fn validate_solver(&self) -> Check {
         let s = &self.solver;
-        positive("solver.gs_tolerance", s.gs_tolerance, "")?;
-        if s.gs_max_iterations == 0 {
-            return fail("solver.gs_max_iterations", "must be ≥ 1");
+        within("solver.gs_tolerance", s.gs_tolerance, 1e-300, 1.0, "")?;
+        if !(1..=1_000_000).contains(&s.gs_max_iterations) {
+            return fail(
+                "solver.gs_max_iterations",
+                format!(
+                    "must be between 1 and 1000000 (got {})",
+                    s.gs_max_iterations
+                ),
+            );
         }
-        positive("solver.time_step", s.time_step, "[s]")?;
+        within("solver.time_step", s.time_step, 1e-6, 10.0, "[s]")?;
         if s.refactor_every == Some(0) {
             return fail("solver.refactor_every", "must be ≥ 1");
         }
+        Ok(())
+    }
 
-        // Path and obstacles.
+    fn validate_path_and_insertion(&self) -> Check {
         let path = SampledPath::from_spec(&self.path).map_err(|e| (e.field, e.reason))?;
+        if self.obstacles.len() > MAX_OBSTACLES {
+            return fail(
+                "obstacles",
+                format!(
+                    "{} obstacles, more than the limit of {MAX_OBSTACLES}",
+                    self.obstacles.len()
+                ),
+            );
+        }
         for (k, o) in self.obstacles.iter().enumerate() {
             for c in 0..3 {
                 finite(&format!("obstacles[{k}].center[{c}]"), o.center[c])?;
             }
             positive(&format!("obstacles[{k}].radius"), o.radius, "[mm]")?;
         }
-
-        // Insertion.
         positive(
             "insertion.advance_per_step",
             self.insertion.advance_per_step,
@@ -268,12 +367,16 @@ impl Scene {
                 "exceeds the whole path length",
             );
         }
-        if self.insertion.steps == Some(0) {
-            return fail(
+        match self.insertion.steps {
+            Some(0) => fail(
                 "insertion.steps",
                 "must be ≥ 1 (or omitted: until the end of the path)",
-            );
+            ),
+            Some(n) if n > MAX_STEPS => fail(
+                "insertion.steps",
+                format!("must be at most {MAX_STEPS} (got {n})"),
+            ),
+            _ => Ok(()),
         }
-        Ok(())
     }
 }

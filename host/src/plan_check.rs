@@ -1,0 +1,119 @@
+//! Checks of a scene's plan against its gel, made at set-up before any step: the path stays in
+//! the gel and out of its fixed part, no obstacle lies on the path, and the needle is long enough
+//! for the insertion. Each refusal names the field and says why in millimetres, on one line.
+
+// Units are written in brackets ([mm], [N]) as in the workspace style: not intra-doc links.
+#![allow(rustdoc::broken_intra_doc_links)]
+
+use crate::error::{SetupError, mm};
+use crate::scene::Scene;
+use crate::world::World;
+use nalgebra::Vector3;
+
+fn refuse(field: &str, reason: String) -> SetupError {
+    SetupError::Plan {
+        field: field.to_owned(),
+        reason,
+    }
+}
+
+/// Every check of the plan of `scene` in its `world` at rest.
+///
+/// # Errors
+/// [`SetupError::Plan`] naming the first problem.
+pub fn check(scene: &Scene, world: &World) -> Result<(), SetupError> {
+    fixed_bottom(scene, world)?;
+    inside_gel(world)?;
+    obstacles(scene, world)?;
+    needle_length(scene, world)
+}
+
+/// No vertex of the path at or below the gel's fixed bottom (`gel.fixed.below_z`).
+fn fixed_bottom(scene: &Scene, world: &World) -> Result<(), SetupError> {
+    let Some(z) = scene.gel.fixed.below_z else {
+        return Ok(());
+    };
+    let path = &world.path;
+    match path.points.iter().position(|p| p.z <= z) {
+        Some(i) => Err(refuse(
+            "path",
+            format!(
+                "reaches z = {:.1} mm at {:.1} mm along the path, into the gel's fixed bottom (gel.fixed.below_z = {z} mm)",
+                path.points[i].z, path.arc[i]
+            ),
+        )),
+        None => Ok(()),
+    }
+}
+
+/// Every vertex of the path lies in the rest gel.
+fn inside_gel(world: &World) -> Result<(), SetupError> {
+    let path = &world.path;
+    match path.points.iter().position(|p| !world.in_rest_gel(p)) {
+        Some(i) => Err(refuse(
+            "path",
+            format!(
+                "the point {} at {:.1} mm along the path is outside the gel",
+                mm(&path.points[i]),
+                path.arc[i]
+            ),
+        )),
+        None => Ok(()),
+    }
+}
+
+/// Distance from `c` to the polyline `points` [mm].
+fn distance_to_polyline(points: &[Vector3<f64>], c: &Vector3<f64>) -> f64 {
+    points
+        .windows(2)
+        .map(|s| {
+            let d = s[1] - s[0];
+            let f = ((c - s[0]).dot(&d) / d.norm_squared()).clamp(0.0, 1.0);
+            (s[0] + f * d - c).norm()
+        })
+        .fold(f64::INFINITY, f64::min)
+}
+
+/// No obstacle on the path: the path's centre line must pass outside every sphere (the
+/// controller keeps the needle on the path, so a path through an obstacle plans a hit).
+fn obstacles(scene: &Scene, world: &World) -> Result<(), SetupError> {
+    for (k, o) in scene.obstacles.iter().enumerate() {
+        let c = Vector3::from(o.center);
+        let d = distance_to_polyline(&world.path.points, &c);
+        if d < o.radius {
+            let name = if o.name.is_empty() {
+                String::new()
+            } else {
+                format!(" `{}`", o.name)
+            };
+            return Err(refuse(
+                &format!("obstacles[{k}]"),
+                format!(
+                    "obstacle{name} lies on the path: the path passes {d:.2} mm from its centre, inside its radius of {} mm",
+                    o.radius
+                ),
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// The needle is longer than the deepest planned insertion (else its base, the flange, would
+/// enter the gel).
+fn needle_length(scene: &Scene, world: &World) -> Result<(), SetupError> {
+    let path = &world.path;
+    let reach = match scene.insertion.steps {
+        Some(n) => (scene.insertion.advance_per_step * n as f64 - path.approach).min(path.length()),
+        None => path.length(),
+    };
+    if scene.needle.length > reach {
+        return Ok(());
+    }
+    Err(refuse(
+        "needle.length",
+        format!(
+            "a {} mm needle cannot be inserted {reach:.1} mm (its base would enter the gel)",
+            scene.needle.length
+        ),
+    ))
+}

@@ -1,0 +1,234 @@
+//! Divergence detection: after every step, the run is checked for a state no physical insertion
+//! reaches — a non-finite value, the tip far outside the gel's neighbourhood, the gel displaced by
+//! more than its own size, a needle folded onto itself — and, at every strain sample, gel
+//! elements inverted or stretched beyond any soft tissue's range. The first such finding stops
+//! the run with a [`StopReason`] (a diverged simulation is never reported as completed).
+
+// Units are written in brackets ([mm], [N]) as in the workspace style: not intra-doc links.
+#![allow(rustdoc::broken_intra_doc_links)]
+
+use crate::fem::tetra::StrainStats;
+use crate::step::StepReport;
+use crate::world::World;
+use nalgebra::Vector3;
+use serde::Serialize;
+use std::fmt;
+
+/// Largest principal strain `|σ(F) − 1|` of a gel element a run may reach [-]: 300 % (the
+/// benchmark scenes stay below 60 %; a gel that blew up reaches thousands of %).
+pub const MAX_STRAIN: f64 = 3.0;
+
+/// Share of the gel's elements that may be inverted at once before the run is declared
+/// diverged (a few elements pinched by the needle tip are normal).
+pub const MAX_INVERTED_SHARE: f64 = 0.01;
+
+/// Shortest chord (base to tip) of the needle, as a share of its length, before it is
+/// declared folded: an elastic needle bent into a half circle keeps 64 %.
+pub const MIN_CHORD_SHARE: f64 = 0.5;
+
+/// Why a run stopped before its last step.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+#[non_exhaustive]
+pub enum StopReason {
+    /// A value of the state or of the step's report is NaN or infinite.
+    NonFinite,
+    /// The tip left the gel's neighbourhood (the gel's bounding box grown by the needle's
+    /// length on every side).
+    TipLeftGel {
+        /// Distance of the tip from the gel's rest bounding box [mm].
+        distance_mm: f64,
+        /// Largest distance allowed [mm].
+        limit_mm: f64,
+    },
+    /// A gel node moved further than the gel's rest diagonal.
+    GelBlowUp {
+        /// Largest node displacement [mm].
+        displacement_mm: f64,
+        /// The gel's rest diagonal [mm].
+        limit_mm: f64,
+    },
+    /// The needle folded: its base and tip came closer than [`MIN_CHORD_SHARE`] of its length.
+    NeedleFolded {
+        /// Base-to-tip distance [mm].
+        chord_mm: f64,
+        /// Needle length [mm].
+        length_mm: f64,
+    },
+    /// More than [`MAX_INVERTED_SHARE`] of the gel's elements are inverted.
+    InvertedElements {
+        /// Inverted elements.
+        inverted: usize,
+        /// Elements of the gel.
+        elements: usize,
+    },
+    /// A gel element is strained beyond [`MAX_STRAIN`].
+    Strain {
+        /// Largest principal strain [-].
+        strain: f64,
+        /// The element.
+        element: usize,
+    },
+    /// The step failed (factorisation, solve, transport, command): the message says which.
+    StepFailed {
+        /// The error chain.
+        message: String,
+    },
+    /// No command answered the frame within the give-up time.
+    NoCommand {
+        /// Seconds waited.
+        waited_s: f64,
+    },
+    /// The naive baseline's rigid IK could not follow the path further.
+    IkFailed {
+        /// The error chain.
+        message: String,
+    },
+}
+
+impl StopReason {
+    /// Whether the simulation diverged (as opposed to a failure of a solve, the transport or the
+    /// baseline's IK).
+    pub fn is_divergence(&self) -> bool {
+        matches!(
+            self,
+            Self::NonFinite
+                | Self::TipLeftGel { .. }
+                | Self::GelBlowUp { .. }
+                | Self::NeedleFolded { .. }
+                | Self::InvertedElements { .. }
+                | Self::Strain { .. }
+        )
+    }
+}
+
+impl fmt::Display for StopReason {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::NonFinite => write!(f, "diverged: the state became non-finite"),
+            Self::TipLeftGel {
+                distance_mm,
+                limit_mm,
+            } => write!(
+                f,
+                "diverged: the tip is {distance_mm:.0} mm from the gel (limit {limit_mm:.0} mm)"
+            ),
+            Self::GelBlowUp {
+                displacement_mm,
+                limit_mm,
+            } => write!(
+                f,
+                "diverged: a gel node moved {displacement_mm:.0} mm, more than the gel's size ({limit_mm:.0} mm)"
+            ),
+            Self::NeedleFolded {
+                chord_mm,
+                length_mm,
+            } => write!(
+                f,
+                "diverged: the needle folded (base to tip {chord_mm:.1} mm for a {length_mm:.1} mm needle)"
+            ),
+            Self::InvertedElements { inverted, elements } => write!(
+                f,
+                "diverged: {inverted} of {elements} gel elements inverted"
+            ),
+            Self::Strain { strain, element } => write!(
+                f,
+                "diverged: gel element {element} strained {:.0} % (limit {:.0} %)",
+                strain * 100.0,
+                MAX_STRAIN * 100.0
+            ),
+            Self::StepFailed { message } => write!(f, "{message}"),
+            Self::NoCommand { waited_s } => write!(f, "no command for {waited_s:.1} s"),
+            Self::IkFailed { message } => write!(f, "{message}"),
+        }
+    }
+}
+
+/// The divergence checks of a run of one world (bounds taken from the rest gel and needle).
+pub struct Watchdog {
+    lo: Vector3<f64>,
+    hi: Vector3<f64>,
+    reach: f64,
+    diagonal: f64,
+    needle_length: f64,
+    elements: usize,
+}
+
+impl Watchdog {
+    /// The checks for `world` at rest.
+    pub fn new(world: &World) -> Self {
+        let (lo, hi) = world.gel.mesh().bounds();
+        let diagonal = (hi - lo).norm();
+        Self {
+            lo,
+            hi,
+            reach: world.needle_length.max(diagonal),
+            diagonal,
+            needle_length: world.needle_length,
+            elements: world.gel.tetra().len(),
+        }
+    }
+
+    /// Distance from `p` to the gel's rest bounding box [mm] (0 inside).
+    fn box_distance(&self, p: &Vector3<f64>) -> f64 {
+        let out = (self.lo - p).sup(&(p - self.hi)).sup(&Vector3::zeros());
+        out.norm()
+    }
+
+    /// The cheap checks after every step: finite report, tip near the gel, gel displacement,
+    /// needle chord.
+    pub fn after_step(&self, world: &World, r: &StepReport) -> Option<StopReason> {
+        let finite = r.error.is_finite()
+            && r.depth.is_finite()
+            && r.tip.iter().chain(r.target.iter()).all(|v| v.is_finite())
+            && r.q.iter().all(|v| v.is_finite());
+        if !finite {
+            return Some(StopReason::NonFinite);
+        }
+        let distance = self.box_distance(&r.tip);
+        if distance > self.reach {
+            return Some(StopReason::TipLeftGel {
+                distance_mm: distance,
+                limit_mm: self.reach,
+            });
+        }
+        let rest = &world.gel.mesh().nodes;
+        let mut largest = 0.0_f64;
+        for (x, x0) in world.gel.positions().iter().zip(rest) {
+            let d = (x - x0).norm();
+            if !d.is_finite() {
+                return Some(StopReason::NonFinite);
+            }
+            largest = largest.max(d);
+        }
+        if largest > self.diagonal {
+            return Some(StopReason::GelBlowUp {
+                displacement_mm: largest,
+                limit_mm: self.diagonal,
+            });
+        }
+        let needle = world.needle.positions();
+        let chord = (needle[needle.len() - 1] - needle[0]).norm();
+        if !chord.is_finite() {
+            return Some(StopReason::NonFinite);
+        }
+        (chord < MIN_CHORD_SHARE * self.needle_length).then_some(StopReason::NeedleFolded {
+            chord_mm: chord,
+            length_mm: self.needle_length,
+        })
+    }
+
+    /// The checks of a strain sample: inverted elements and largest strain.
+    pub fn strain(&self, st: &StrainStats) -> Option<StopReason> {
+        if st.inverted as f64 > MAX_INVERTED_SHARE * self.elements as f64 {
+            return Some(StopReason::InvertedElements {
+                inverted: st.inverted,
+                elements: self.elements,
+            });
+        }
+        (!(st.max_strain <= MAX_STRAIN)).then_some(StopReason::Strain {
+            strain: st.max_strain,
+            element: st.element,
+        })
+    }
+}

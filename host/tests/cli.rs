@@ -1,0 +1,82 @@
+//! The `needle` command line as a user meets it: traps found by trying it (issue "trust"), each
+//! test named after what broke.
+
+use std::path::PathBuf;
+use std::process::{Command, Output, Stdio};
+
+fn needle() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_needle"))
+}
+
+fn tmp(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("needle-cli-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).expect("temp dir");
+    d
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+/// A short run of the simple scene on a small gel (3 steps unless `extra` gives `--steps`).
+fn short_run(extra: &[&str]) -> Command {
+    let mut c = needle();
+    c.args(["run", "simple", "--nodes", "300", "--quiet"]);
+    if !extra.contains(&"--steps") {
+        c.args(["--steps", "3"]);
+    }
+    c.args(extra);
+    c
+}
+
+#[test]
+fn steps_of_a_billion_are_refused_instead_of_allocating_368_gb() {
+    let o = short_run(&["--steps", "1000000000"]).output().expect("run");
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(stderr(&o).contains("must be between 1 and 10000000"));
+}
+
+#[test]
+fn steps_of_u64_max_are_refused_instead_of_panicking() {
+    let o = short_run(&["--steps", "18446744073709551615"])
+        .output()
+        .expect("run");
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(!stderr(&o).contains("panicked"), "{}", stderr(&o));
+}
+
+#[test]
+fn vtk_every_without_out_is_refused_instead_of_ignored() {
+    let o = short_run(&["--vtk-every", "10"]).output().expect("run");
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(stderr(&o).contains("--out"), "{}", stderr(&o));
+}
+
+#[test]
+fn embedded_scene_runs_beside_a_folder_of_the_same_name() {
+    let dir = tmp("folder");
+    std::fs::create_dir_all(dir.join("simple")).expect("folder `simple`");
+    let o = short_run(&[]).current_dir(&dir).output().expect("run");
+    let err = stderr(&o);
+    assert!(!err.contains("Is a directory"), "{err}");
+    assert!(!err.contains("cannot read"), "{err}");
+    // Three steps end above the gel: stopped short of the target, a run's outcome, not an error.
+    assert!(!matches!(o.status.code(), Some(1 | 2)), "{err}");
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+#[test]
+fn json_into_a_closed_pipe_exits_quietly_without_a_panic() {
+    let mut child = short_run(&["--json"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("spawn");
+    // The reader goes away before the summary is printed (`needle run --json | head -0`).
+    drop(child.stdout.take());
+    let o = child.wait_with_output().expect("wait");
+    let err = stderr(&o);
+    assert!(!err.contains("panicked"), "{err}");
+    assert!(!err.contains("Broken pipe"), "{err}");
+}
