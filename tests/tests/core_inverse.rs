@@ -166,3 +166,40 @@ fn newton_steps_converge_with_base_angle_when_inserted() {
     }
     assert!(last < 1e-2, "{last}");
 }
+
+/// Regression (issue "trust"): after one frame with δ = 10³⁰⁰ the next ordinary frames got
+/// commands 1.6e-2 rad off a clean controller's, each reported converged — the previous answer's
+/// huge λ warm-started their solves and entered the convergence scale. The warm start is now
+/// dropped when its force scale is far off the frame's, so the commands are a clean controller's.
+#[test]
+fn frames_after_one_with_delta_1e300_get_a_clean_controllers_commands() {
+    let chain = DhChain::rv1a();
+    let mut frame = boxed_frame();
+    let mut cmd = boxed_command();
+    let mut clean_cmd = boxed_command();
+    // 1e300 itself overflows inside the solve and is refused; the smaller factors gave finite,
+    // wrong warm starts.
+    for factor in [1e8, 1e20, 1e100, 1e300] {
+        let mut clean = Controller::<M>::new(chain, InverseParams::default());
+        let mut hit = Controller::<M>::new(chain, InverseParams::default());
+        random_frame(&mut frame, &chain, &Q_TARGET, M, 100, true);
+        let m = frame.m as usize;
+        for d in &mut frame.delta_free[..m] {
+            *d *= factor;
+        }
+        // Accepted or refused, either way it must not leak into the next frames.
+        let _ = hit.step(&frame, &mut cmd);
+        for seed in 1..6 {
+            random_frame(&mut frame, &chain, &Q_TARGET, M, seed, true);
+            clean.step(&frame, &mut clean_cmd).expect("clean");
+            let rep = hit.step(&frame, &mut cmd).expect("after the hostile frame");
+            assert_eq!(rep.flags & StatusFlags::NOT_CONVERGED, 0, "seed {seed}");
+            for (a, b) in cmd.q.iter().zip(&clean_cmd.q) {
+                assert!(
+                    (a - b).abs() <= 1e-12,
+                    "δ × {factor:e}, seed {seed}: q {a} against {b}"
+                );
+            }
+        }
+    }
+}

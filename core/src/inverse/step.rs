@@ -6,6 +6,11 @@ use crate::constraint::SolveReport;
 use crate::payload::{Command, ComplianceFrame, SolverReport, StatusFlags, VERSION};
 use nalgebra::{Matrix4, SMatrix, SVector, Vector4};
 
+/// Largest ratio of the previous answer's force scale to a frame's `‖δ‖∞` for which the previous
+/// answer warm-starts the frame's solves (consecutive frames of one insertion differ by far
+/// less; a frame a million times off is abnormal, and so is the answer it produced).
+pub const WARM_START_SCALE: f64 = 1e6;
+
 /// The Jacobian `∂T/∂q`, 4 × N [mm/rad].
 type Jacobian<const N: usize> = SMatrix<f64, 4, N>;
 
@@ -78,8 +83,9 @@ impl<const M: usize, const N: usize> Controller<M, N> {
         self.prepare_blocks(frame)?;
         let m = frame.rows();
         self.delta[..m].copy_from_slice(&frame.delta_free[..m]);
+        let warm = self.params.warm_start && self.warm_start_fits(frame, m);
         let l = &mut self.lambda;
-        if self.params.warm_start && l.prev_rows > 0 {
+        if warm {
             let n = l.prev_rows.min(m);
             l.base[..n].copy_from_slice(&l.prev[..n]);
             l.base[n..m].fill(0.0);
@@ -87,6 +93,23 @@ impl<const M: usize, const N: usize> Controller<M, N> {
             l.base[..m].fill(0.0);
         }
         Ok(m)
+    }
+
+    /// Whether the previous answer may start this frame's solves: there is one, and its force
+    /// scale `max |W_ii λ_i|` is within [`WARM_START_SCALE`] of this frame's `‖δ‖∞`. A warm start
+    /// from an abnormal frame (`δ = 10³⁰⁰`) would otherwise enter the solver's convergence scale
+    /// and let wrong answers pass as converged for many frames.
+    fn warm_start_fits(&self, frame: &ComplianceFrame<M, N>, m: usize) -> bool {
+        let l = &self.lambda;
+        let n = l.prev_rows.min(m);
+        if n == 0 {
+            return false;
+        }
+        let delta = frame.delta_free[..m]
+            .iter()
+            .fold(0.0_f64, |a, d| a.max(libm::fabs(*d)));
+        let force = (0..n).fold(0.0_f64, |a, i| a.max(libm::fabs(frame.w[i][i] * l.prev[i])));
+        force.is_finite() && force <= WARM_START_SCALE * delta.max(f64::MIN_POSITIVE)
     }
 
     /// Stage 2: `λ_q` at the frame's joints and the objective `T(q)` there.
@@ -315,8 +338,18 @@ impl<const M: usize, const N: usize> Controller<M, N> {
         if !q_new.iter().all(|x| x.is_finite())
             || !self.lambda.work[..m].iter().all(|x| x.is_finite())
         {
+            self.reset_warm_start();
             return Err(StepError::NonFinite {
                 stage: "final solve",
+            });
+        }
+        let finite_report = report.final_residual.is_finite()
+            && report.objective.iter().all(|x| x.is_finite())
+            && report.objective_after.iter().all(|x| x.is_finite());
+        if !finite_report {
+            self.reset_warm_start();
+            return Err(StepError::NonFinite {
+                stage: "objective (report)",
             });
         }
         self.write_command(frame, q_new, report, cmd);
