@@ -8,6 +8,7 @@
 mod bounded_read;
 pub mod compliance;
 pub mod constraints;
+pub mod cpu;
 pub mod error;
 pub mod fem;
 pub mod free_motion;

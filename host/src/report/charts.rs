@@ -75,6 +75,25 @@ enum Chart<'a> {
 
 type DrawResult = Result<(), Box<dyn std::error::Error>>;
 
+/// The legend box of every chart (series labels on a translucent white box), in `position`.
+fn legend<'a, DB: DrawingBackend + 'a, CT: plotters::coord::CoordTranslate>(
+    chart: &mut ChartContext<'a, DB, CT>,
+    font: u32,
+    position: SeriesLabelPosition,
+) -> DrawResult
+where
+    DB::ErrorType: 'static,
+{
+    chart
+        .configure_series_labels()
+        .label_font(("sans-serif", font))
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .position(position)
+        .draw()?;
+    Ok(())
+}
+
 impl Chart<'_> {
     fn draw<DB: DrawingBackend>(&self, root: DrawingArea<DB, Shift>) -> Result<(), String>
     where
@@ -162,13 +181,7 @@ where
                     PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(2))
                 });
         }
-        chart
-            .configure_series_labels()
-            .label_font(("sans-serif", 14))
-            .background_style(WHITE.mix(0.85))
-            .border_style(BLACK)
-            .position(SeriesLabelPosition::UpperLeft)
-            .draw()?;
+        legend(&mut chart, 14, SeriesLabelPosition::UpperLeft)?;
     }
     Ok(())
 }
@@ -271,18 +284,13 @@ where
             )?
             .label("the paper's time per step (SOFA + GPU)")
             .legend(|(x, y)| Cross::new((x + 7, y), 5, BLACK.stroke_width(2)));
-        chart
-            .configure_series_labels()
-            .label_font(("sans-serif", 13))
-            .background_style(WHITE.mix(0.85))
-            .border_style(BLACK)
-            .position(SeriesLabelPosition::UpperLeft)
-            .draw()?;
+        legend(&mut chart, 13, SeriesLabelPosition::UpperLeft)?;
     }
     Ok(())
 }
 
-/// Speed against error: mean time per step (the throughput) against e_mean, every run, coloured by group.
+/// Speed against error: CPU time per step summed over threads (a background thread is not
+/// free) against e_mean, every run, coloured by group; the paper's wall time per step beside.
 fn speed_vs_error<DB: DrawingBackend>(
     root: &DrawingArea<DB, Shift>,
     runs: &[ReportRun],
@@ -291,14 +299,14 @@ where
     DB::ErrorType: 'static,
 {
     root.fill(&WHITE)?;
-    let pts: Vec<(&ReportRun, f64, f64)> = runs
-        .iter()
-        .filter_map(|r| {
-            let s = r.summary.as_ref()?;
-            (s.e_mean_mm.is_finite() && s.e_mean_mm > 0.0 && s.timing.total.mean_ms > 0.0)
-                .then_some((r, s.e_mean_mm, s.timing.total.mean_ms))
-        })
-        .collect();
+    let pts: Vec<(&ReportRun, f64, f64)> =
+        runs.iter()
+            .filter_map(|r| {
+                let s = r.summary.as_ref()?;
+                (s.e_mean_mm.is_finite() && s.e_mean_mm > 0.0 && s.cpu_ms_per_step > 0.0)
+                    .then_some((r, s.e_mean_mm, s.cpu_ms_per_step))
+            })
+            .collect();
     let (xlo, xhi) = pts
         .iter()
         .map(|p| p.1)
@@ -317,7 +325,7 @@ where
     let mut builder = ChartBuilder::on(root);
     builder
         .caption(
-            "Speed against error: mean time per step against e_mean, every run",
+            "Speed against error: CPU time per step (all threads) against e_mean, every run",
             ("sans-serif", 22),
         )
         .margin(15)
@@ -331,7 +339,7 @@ where
         chart
             .configure_mesh()
             .x_desc("e_mean [mm] (log scale)")
-            .y_desc("time per step, mean [ms]")
+            .y_desc("CPU time per step, all threads [ms]")
             .x_labels(8)
             .x_label_formatter(&|x| format!("{x:.2}"))
             .label_style(("sans-serif", 14))
@@ -345,7 +353,7 @@ where
         chart
             .configure_mesh()
             .x_desc("e_mean [mm]")
-            .y_desc("time per step, mean [ms]")
+            .y_desc("CPU time per step, all threads [ms]")
             .label_style(("sans-serif", 14))
             .axis_desc_style(("sans-serif", 15))
             .draw()?;
@@ -433,12 +441,6 @@ where
         )?
         .label("the paper, complex path (600 / 1500 / 1800 nodes)")
         .legend(|(x, y)| Cross::new((x + 7, y), 5, BLACK.stroke_width(2)));
-    chart
-        .configure_series_labels()
-        .label_font(("sans-serif", 14))
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK)
-        .position(SeriesLabelPosition::UpperRight)
-        .draw()?;
+    legend(chart, 14, SeriesLabelPosition::UpperRight)?;
     Ok(())
 }

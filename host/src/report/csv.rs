@@ -6,7 +6,7 @@ use crate::run::RunSummary;
 use std::path::Path;
 
 /// The columns of `runs.csv`.
-const RUNS_HEADER: [&str; 46] = [
+const RUNS_HEADER: [&str; 47] = [
     "run",
     "scene",
     "controller",
@@ -38,6 +38,7 @@ const RUNS_HEADER: [&str; 46] = [
     "step_median_ms",
     "step_p99_ms",
     "step_mean_ms",
+    "step_cpu_ms",
     "fm_median_ms",
     "fm_p99_ms",
     "cd_median_ms",
@@ -92,7 +93,12 @@ fn summary_fields(r: &ReportRun, s: &RunSummary) -> Vec<String> {
             .collect::<Vec<_>>()
             .join(";"),
     ];
-    row.extend([n(t.total.median_ms), n(t.total.p99_ms), n(t.total.mean_ms)]);
+    row.extend([
+        n(t.total.median_ms),
+        n(t.total.p99_ms),
+        n(t.total.mean_ms),
+        n(s.cpu_ms_per_step),
+    ]);
     for stage in [&t.fm, &t.cd, &t.cc, &t.sc, &t.correction] {
         row.extend([n(stage.median_ms), n(stage.p99_ms)]);
     }

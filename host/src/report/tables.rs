@@ -50,7 +50,9 @@ fn intro(md: &mut String, s: &ReportSummary) {
     let _ = writeln!(
         md,
         "Times are wall-clock per step on this machine ({cores} logical cores, one thread per \
-         run), medians and 99th percentiles over the run's steps; FM free motion, CD proximity, \
+         run), medians and 99th percentiles over the run's steps, and the mean; CPU per step is \
+         the process's CPU time summed over its threads (the background factorisation \
+         included) per step; FM free motion, CD proximity, \
          CC compliance, SC the core's constraint solves (the inverse step: 7–8 Gauss-Seidel \
          solves), corr corrective motion. Errors are `|tip − target|` in the deformed gel over \
          the steps with the tip inside the gel. Clearance: the smallest distance from the \
@@ -86,10 +88,10 @@ fn paper_figures(md: &mut String) {
 
 /// The columns of a group's table after `scene | controller | parameter`.
 const COLUMNS: &str = " nodes | steps | completed | e_mean [mm] | e_max [mm] | final [mm] | \
-     min clearance [mm] | step median [ms] | step p99 [ms] | step mean [ms] | FM | CD | CC | SC \
-     | corr | GS sweeps |";
+     min clearance [mm] | step median [ms] | step p99 [ms] | step mean [ms] | \
+     CPU per step [ms] | FM | CD | CC | SC | corr | GS sweeps |";
 /// How many of [`COLUMNS`] there are.
-const COLUMN_COUNT: usize = 16;
+const COLUMN_COUNT: usize = 17;
 
 /// The table of one group (nothing when no run belongs to it), with the notes on the runs that
 /// did not complete.
@@ -195,6 +197,7 @@ fn summary_cells(md: &mut String, r: &ReportRun, sm: &RunSummary, notes: &mut Ve
         t.total.median_ms,
         t.total.p99_ms,
         t.total.mean_ms,
+        sm.cpu_ms_per_step,
         t.fm.median_ms,
         t.cd.median_ms,
         t.cc.median_ms,

@@ -40,6 +40,7 @@ use crate::setup::Setup;
 use crate::step::{Pipeline, ROWS, StepReport};
 use crate::world::World;
 use needle_bridge::{InProcess, Transport};
+use needle_core::payload::JOINTS;
 use outputs::{MetricsCsv, SummaryJson, VtkFrames};
 use remote::Remote;
 use serde::Serialize;
@@ -190,6 +191,50 @@ fn outputs(
     Ok(out)
 }
 
+/// The naive baseline's trajectory replayed open loop (up to where the rigid IK failed, and
+/// why it stopped there).
+fn naive_replay(
+    world: &World,
+    params: &crate::step::StepParams,
+    robot: needle_core::kinematics::DhChain<JOINTS>,
+    inverse: needle_core::inverse::InverseParams,
+    steps: usize,
+) -> (Option<OpenLoop>, Option<(usize, StopReason)>) {
+    let (joints, stop) = naive::naive_trajectory(world, &params.insertion, steps);
+    let replay = OpenLoop::new(robot, inverse, joints);
+    let stop = stop.map(|e| (e.step(), StopReason::IkFailed { message: chain(&e) }));
+    (Some(replay), stop)
+}
+
+/// The run's own checks and records of each step: divergence checks, statistics, files.
+struct Books {
+    stats: Statistics,
+    watchdog: Watchdog,
+    files: Vec<Box<dyn Observer>>,
+}
+
+impl Books {
+    /// Checks step `r` and records it; a reason to stop instead (the step is then not recorded
+    /// in the files).
+    fn step(&mut self, world: &World, r: &StepReport) -> Result<Option<StopReason>, RunError> {
+        if let Some(why) = self.watchdog.after_step(world, r) {
+            return Ok(Some(why));
+        }
+        self.stats.step(world, r)?;
+        if let Some(why) = self
+            .stats
+            .sampled()
+            .and_then(|st| self.watchdog.strain(&st))
+        {
+            return Ok(Some(why));
+        }
+        for f in &mut self.files {
+            f.step(world, r)?;
+        }
+        Ok(None)
+    }
+}
+
 /// [`run_with`] on a scene already set up (e.g. built or changed in code).
 ///
 /// # Errors
@@ -208,16 +253,10 @@ pub fn run_setup(
         plan,
     } = setup;
     let steps = opts.steps.unwrap_or(plan.steps);
-    let mut files = outputs(opts, opts.vtk_every.unwrap_or(plan.vtk_every), &world)?;
-    // The naive baseline replays its trajectory (up to where the rigid IK failed) open loop.
+    let files = outputs(opts, opts.vtk_every.unwrap_or(plan.vtk_every), &world)?;
     let (mut open_loop, mut stopped) = match opts.controller {
         ControllerKind::Inverse => (None, None),
-        ControllerKind::Naive => {
-            let (joints, stop) = naive::naive_trajectory(&world, &params.insertion, steps);
-            let replay = OpenLoop::new(robot, inverse, joints);
-            let stop = stop.map(|e| (e.step(), StopReason::IkFailed { message: chain(&e) }));
-            (Some(replay), stop)
-        }
+        ControllerKind::Naive => naive_replay(&world, &params, robot, inverse, steps),
     };
     let n = open_loop.as_ref().map_or(steps, |o| o.joints.len());
     let core: &mut dyn Transport<ROWS> = match open_loop.as_mut() {
@@ -226,10 +265,17 @@ pub fn run_setup(
     };
     let mut remote = Remote::new(core, opts.period, opts.give_up_after);
     let mut pipeline = Pipeline::new(&world);
-    let mut stats = Statistics::new(&world, n);
-    let watchdog = Watchdog::new(&world);
+    let mut books = Books {
+        stats: Statistics::new(&world, n),
+        watchdog: Watchdog::new(&world),
+        files,
+    };
     // Grown step by step: `steps` may be far more than the run will reach.
     let mut reports = Vec::new();
+    // CPU of the steps, all threads: the process clock over the loop less this thread's time in
+    // the run's own bookkeeping (checks, statistics, files, the observer).
+    let cpu_start = crate::cpu::process_s();
+    let mut bookkeeping = 0.0;
     for k in 0..n {
         remote.pace(world.c);
         let r = match pipeline.step(&mut world, &params, &mut remote) {
@@ -239,22 +285,20 @@ pub fn run_setup(
                 break;
             }
         };
-        if let Some(why) = watchdog.after_step(&world, &r) {
+        let outside = crate::cpu::thread_s();
+        let why = books.step(&world, &r)?;
+        if why.is_none() {
+            observe(&r);
+            reports.push(r);
+        }
+        bookkeeping += crate::cpu::thread_s() - outside;
+        if let Some(why) = why {
             stopped = Some((k, why));
             break;
         }
-        stats.step(&world, &r)?;
-        if let Some(why) = stats.sampled().and_then(|st| watchdog.strain(&st)) {
-            stopped = Some((k, why));
-            break;
-        }
-        for f in &mut files {
-            f.step(&world, &r)?;
-        }
-        observe(&r);
-        reports.push(r);
     }
-    let summary = stats.summary(
+    let cpu_s = crate::cpu::process_s() - cpu_start - bookkeeping;
+    let summary = books.stats.summary(
         &plan,
         &world,
         Ending {
@@ -263,9 +307,10 @@ pub fn run_setup(
             stopped,
             reports: &reports,
             holds: (remote.holds, remote.held.as_secs_f64() * 1e3),
+            cpu_s,
         },
     );
-    for f in &mut files {
+    for f in &mut books.files {
         f.finish(&summary)?;
     }
     let error_by_depth = reports

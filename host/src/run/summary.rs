@@ -105,6 +105,10 @@ pub struct RunSummary {
     pub obstacle_hit: bool,
     /// Stage times.
     pub timing: StageTiming,
+    /// CPU time per step, summed over all threads (the gel's background factorisation
+    /// included), from the process's CPU clock; the run's own bookkeeping (checks, statistics,
+    /// output files) excluded [ms]. Compare with `timing.total.mean_ms`, the wall time.
+    pub cpu_ms_per_step: f64,
     /// Gauss-Seidel sweeps per step (all solves): mean.
     pub gs_iterations_mean: f64,
     /// Gauss-Seidel sweeps per step: largest.
@@ -206,6 +210,8 @@ pub struct Ending<'a> {
     pub reports: &'a [StepReport],
     /// Holds and time held [ms].
     pub holds: (usize, f64),
+    /// CPU time of the steps, summed over the process's threads [s].
+    pub cpu_s: f64,
 }
 
 /// Steps whose solver report carries `flag`.
@@ -287,6 +293,11 @@ impl Statistics {
             obstacle_hit: clearances.iter().any(|c| c.min_mm < 0.0),
             clearances,
             timing: stage_timing(reports),
+            cpu_ms_per_step: if reports.is_empty() {
+                0.0
+            } else {
+                end.cpu_s * 1e3 / reports.len() as f64
+            },
             gs_iterations_mean: if reports.is_empty() {
                 0.0
             } else {
