@@ -1,5 +1,5 @@
-//! The whole inverse step (validate, factor, 8 constraint solves, Newton step) at m = 30 and
-//! m = 120 on seeded random frames. The controller warm-starts from its previous λ, as in
+//! The whole inverse step (validate, factor, 8 constraint solves, Newton step) at m = 30, 120
+//! and the full capacity 192 on seeded random frames. The controller warm-starts from its previous λ, as in
 //! production where consecutive frames are close; the `_cold` variant resets it every step.
 
 use criterion::{Criterion, criterion_group, criterion_main};
@@ -9,7 +9,7 @@ mod common;
 use common::{command, controller, frame};
 
 fn bench(c: &mut Criterion) {
-    for m in [30usize, 120] {
+    for m in [30usize, 120, 192] {
         let f = frame(m, 11);
         let mut cmd = command();
         let mut ctrl = controller();

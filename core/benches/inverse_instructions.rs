@@ -1,6 +1,8 @@
-//! Instruction counts (valgrind, through gungraun) of the inverse step at m = 120, cold (fresh
-//! controller; `_plain_gs`: without the active-set prediction) — deterministic, so regressions show as exact count changes.
-//! Run: `cargo bench -p needle-core --bench inverse_instructions` (needs `gungraun-runner` 0.20).
+//! Instruction counts (valgrind, through gungraun) of the inverse step at m = 30, 120 and the full
+//! capacity 192, cold (fresh controller; `_plain_gs`: without the active-set prediction) —
+//! deterministic, so regressions show as exact count changes. CI gates them against
+//! `core/benches/instructions_baseline.json`: `python3 tools/check_instructions.py` (needs
+//! valgrind and `gungraun-runner` 0.20.0; `--update` rewrites the baseline).
 
 use gungraun::{library_benchmark, library_benchmark_group, main};
 use needle_core::{Command, ComplianceFrame, Controller, SolverReport};
@@ -28,6 +30,7 @@ fn setup(m: usize, active_set: bool) -> State {
 #[bench::inverse_step_m30(args = (30, true), setup = setup)]
 #[bench::inverse_step_m120(args = (120, true), setup = setup)]
 #[bench::inverse_step_m120_plain_gs(args = (120, false), setup = setup)]
+#[bench::inverse_step_m192(args = (192, true), setup = setup)]
 fn inverse_step(mut s: State) -> SolverReport {
     let rep = s.ctrl.step(black_box(&s.frame), &mut s.cmd);
     black_box(rep.unwrap_or_default())

@@ -119,6 +119,9 @@ proptest! {
                 prop_assert!(frame.validate().is_ok());
                 prop_assert!(cmd.q.iter().all(|x| x.is_finite()));
                 prop_assert!(cmd.lambda[..frame.m as usize].iter().all(|x| x.is_finite()));
+                // No NaN anywhere in an accepted command (issue "trust": 7 hostile frames got
+                // Ok with NaN in the report's objective).
+                prop_assert_eq!(cmd.validate(), Ok(()));
             }
             Err(e) => {
                 // A frame that validates can still hold a W that is not positive definite (a
@@ -130,6 +133,37 @@ proptest! {
                 prop_assert_eq!(cmd.q, before, "command untouched on error");
                 let _ = format!("{e}");
             }
+        }
+    }
+
+    /// A command with hostile values in any field passes `Command::validate` only when every
+    /// field is finite and the joints within two turns.
+    #[test]
+    fn commands_validate_only_when_every_field_is_finite(
+        m in 0u32..=M as u32,
+        q in proptest::collection::vec(hostile_f64(), 6),
+        lambda in hostile_f64(),
+        row in 0usize..M,
+        residual in hostile_f64(),
+        objective in hostile_f64(),
+        after in hostile_f64(),
+        dq in hostile_f64(),
+    ) {
+        let mut cmd = boxed_command();
+        cmd.m = m;
+        cmd.q.copy_from_slice(&q);
+        cmd.lambda[row] = lambda;
+        cmd.report.final_residual = residual;
+        cmd.report.objective[0] = objective;
+        cmd.report.objective_after[1] = after;
+        cmd.report.delta_q[2] = dq;
+        if cmd.validate().is_ok() {
+            let used = (row < m as usize).then_some(lambda);
+            let report = [residual, objective, after, dq];
+            let mut all = q.iter().chain(used.iter()).chain(report.iter());
+            prop_assert!(all.all(|x| x.is_finite()));
+            prop_assert!(q.iter().all(|x| x.abs() <= needle_core::payload::MAX_JOINT_ANGLE));
+            prop_assert!(residual >= 0.0);
         }
     }
 

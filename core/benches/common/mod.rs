@@ -5,8 +5,9 @@
 use needle_core::synthetic::random_frame;
 use needle_core::{Command, ComplianceFrame, Controller, DhChain, InverseParams};
 
-/// Capacity used by the benches.
-pub const M: usize = 128;
+/// Capacity used by the benches: the host's (`needle_host::step::ROWS`), so that strides and
+/// cache footprint are production's.
+pub const M: usize = 192;
 
 /// Benchmark pose (wrist away from the J5 = 0 singularity).
 pub const Q: [f64; 6] = [0.1, 0.3, 2.0, 0.0, 0.5, 0.0];
