@@ -44,6 +44,9 @@ pub enum OutputFailure {
     /// The summary could not be serialised.
     #[error(transparent)]
     Json(#[from] serde_json::Error),
+    /// The replay page could not be built or written (says why).
+    #[error("replay: {0}")]
+    Replay(String),
 }
 
 impl OutputError {

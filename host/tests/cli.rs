@@ -80,3 +80,32 @@ fn json_into_a_closed_pipe_exits_quietly_without_a_panic() {
     assert!(!err.contains("panicked"), "{err}");
     assert!(!err.contains("Broken pipe"), "{err}");
 }
+
+/// The embedded JSON document of a replay page.
+fn replay_doc(html: &str) -> serde_json::Value {
+    let open = r#"<script id="replay-data" type="application/json">"#;
+    let start = html.find(open).expect("the data element") + open.len();
+    let end = start + html[start..].find("</script>").expect("its end");
+    serde_json::from_str(&html[start..end]).expect("JSON")
+}
+
+#[test]
+fn run_with_out_writes_a_replay_with_its_first_and_last_frames() {
+    let dir = tmp("replay");
+    let o = short_run(&["--steps", "47"])
+        .arg("--out")
+        .arg(&dir)
+        .output()
+        .expect("run");
+    assert!(!matches!(o.status.code(), Some(1 | 2)), "{}", stderr(&o));
+    let html = std::fs::read_to_string(dir.join("replay.html")).expect("replay.html");
+    let doc = replay_doc(&html);
+    let frames = doc["frames"].as_array().expect("frames");
+    // 47 planned steps → about one frame a step; the start and the last step always.
+    assert_eq!(frames[0]["step"], 0);
+    assert_eq!(frames.last().expect("a frame")["step"], 47);
+    assert!(frames.len() >= 2);
+    let summary = doc["summary"].as_array().expect("summary");
+    assert_eq!(summary[0][0], "outcome");
+    let _ = std::fs::remove_dir_all(dir);
+}

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Browser test of the replay page (docs/replay.md): builds the demo replay
-# (host/examples/replay_demo.rs) into a temporary folder and checks it in headless Chromium
-# with replay.test.mjs. Installs what a fresh machine lacks: Debian's chromium (as root) and the
+# (host/examples/replay_demo.rs) and the replay of a real run (`needle run simple --out`) into a
+# temporary folder and checks both in headless Chromium with replay.test.mjs. Installs what a fresh machine lacks: Debian's chromium (as root) and the
 # pinned playwright-core (npm ci). Exit code non-zero on any failure.
 #
 #   bash tests/browser/run.sh                                  # the test
@@ -41,17 +41,21 @@ command -v cargo >/dev/null || die "cargo is missing (https://rustup.rs)"
 (cd "$here" && npm ci --no-audit --no-fund --loglevel=error) || die "npm ci failed"
 
 out="$(mktemp -d "${TMPDIR:-/tmp}/needle-replay-test.XXXXXX")"
-(cd "$root" && cargo run --release --quiet -p needle-host --example replay_demo -- "$out") \
+# Two pages: the synthetic demo (mesh obstacles, 120 frames) and a real run of the simple scene
+# (`needle run --out DIR` writes DIR/replay.html); the screenshot kept is the real run's.
+(cd "$root" && cargo run --release --quiet -p needle-host --example replay_demo -- "$out/demo") \
   || die "the replay demo failed (output in $out)"
+(cd "$root" && cargo run --release --quiet -p needle-host --bin needle -- run simple --quiet \
+  --out "$out/run" >/dev/null) || die "needle run simple failed (output in $out)"
 
-if node "$here/replay.test.mjs" "$out/replay.html" --screenshot "$out/screenshot.png" \
-  --template "$root/host/assets/replay.html"; then
-  if [ -n "$keep_screenshot" ]; then
-    mkdir -p "$(dirname "$keep_screenshot")"
-    cp "$out/screenshot.png" "$keep_screenshot"
-    echo "screenshot kept in $keep_screenshot"
-  fi
-  rm -rf "$out"
-else
-  die "the browser test failed; its replay and screenshot are in $out"
+for page in demo run; do
+  node "$here/replay.test.mjs" "$out/$page/replay.html" --screenshot "$out/$page/screenshot.png" \
+    --template "$root/host/assets/replay.html" \
+    || die "the browser test of the $page page failed; its replay and screenshot are in $out/$page"
+done
+if [ -n "$keep_screenshot" ]; then
+  mkdir -p "$(dirname "$keep_screenshot")"
+  cp "$out/run/screenshot.png" "$keep_screenshot"
+  echo "screenshot kept in $keep_screenshot"
 fi
+rm -rf "$out"

@@ -24,6 +24,7 @@ pub mod metrics;
 pub mod naive;
 pub mod outputs;
 pub mod remote;
+pub mod replay_out;
 pub mod summary;
 pub mod watch;
 
@@ -36,13 +37,14 @@ use crate::error::{SetupError, chain};
 use crate::open_loop::OpenLoop;
 use crate::output::OutputError;
 use crate::scene::Scene;
-use crate::setup::Setup;
+use crate::setup::{Plan, Setup};
 use crate::step::{Pipeline, ROWS, StepReport};
 use crate::world::World;
 use needle_bridge::{InProcess, Transport};
 use needle_core::payload::JOINTS;
 use outputs::{MetricsCsv, SummaryJson, VtkFrames};
 use remote::Remote;
+use replay_out::ReplayRecorder;
 use serde::Serialize;
 use std::path::PathBuf;
 use std::time::Duration;
@@ -173,10 +175,14 @@ pub fn run_with(
     run_setup(Setup::build(scene)?, opts, transport, observe)
 }
 
-/// The observers writing the files of a run into `opts.out_dir` (none without it).
+/// The observers writing the files of a run into `opts.out_dir` (none without it): the
+/// metrics CSV, VTK frames every `vtk_every` steps (none with 0), `summary.json` and
+/// `replay.html`.
 fn outputs(
     opts: &RunOptions,
     vtk_every: usize,
+    plan: &Plan,
+    dt: f64,
     world: &World,
 ) -> Result<Vec<Box<dyn Observer>>, OutputError> {
     let Some(dir) = &opts.out_dir else {
@@ -188,6 +194,7 @@ fn outputs(
         out.push(Box::new(VtkFrames::start(dir, vtk_every, world)?));
     }
     out.push(Box::new(SummaryJson(dir.clone())));
+    out.push(Box::new(ReplayRecorder::start(dir, plan, dt, world)?));
     Ok(out)
 }
 
@@ -253,7 +260,8 @@ pub fn run_setup(
         plan,
     } = setup;
     let steps = opts.steps.unwrap_or(plan.steps);
-    let files = outputs(opts, opts.vtk_every.unwrap_or(plan.vtk_every), &world)?;
+    let vtk_every = opts.vtk_every.unwrap_or(plan.vtk_every);
+    let files = outputs(opts, vtk_every, &plan, params.dt, &world)?;
     let (mut open_loop, mut stopped) = match opts.controller {
         ControllerKind::Inverse => (None, None),
         ControllerKind::Naive => naive_replay(&world, &params, robot, inverse, steps),
