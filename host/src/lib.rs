@@ -24,4 +24,5 @@ pub mod run;
 pub mod scene;
 pub mod setup;
 pub mod step;
+pub mod suite;
 pub mod world;

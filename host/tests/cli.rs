@@ -109,3 +109,38 @@ fn run_with_out_writes_a_replay_with_its_first_and_last_frames() {
     assert_eq!(summary[0][0], "outcome");
     let _ = std::fs::remove_dir_all(dir);
 }
+
+#[test]
+fn suite_runs_every_scene_of_a_folder_and_records_one_that_cannot_run() {
+    let dir = tmp("suite");
+    let scenes = dir.join("scenes");
+    std::fs::create_dir_all(&scenes).expect("folder");
+    let simple = concat!(env!("CARGO_MANIFEST_DIR"), "/../scenes/simple.toml");
+    std::fs::copy(simple, scenes.join("a_simple.toml")).expect("copy");
+    std::fs::write(scenes.join("b_broken.toml"), "name = \"broken\"\n[gel\n").expect("write");
+    std::fs::write(scenes.join("notes.txt"), "not a scene").expect("write");
+    let o = needle()
+        .args(["suite", "--no-benchmarks", "--quiet", "--steps", "20"])
+        .args(["--set", "gel.box.nodes=300"])
+        .arg("--dir")
+        .arg(&scenes)
+        .arg("--out")
+        .arg(dir.join("out"))
+        .output()
+        .expect("suite");
+    let out = String::from_utf8_lossy(&o.stdout);
+    // A scene that cannot run: exit 1, and the others still ran.
+    assert_eq!(o.status.code(), Some(1), "{out}\n{}", stderr(&o));
+    assert!(out.contains("scenes run: 1 of 2"), "{out}");
+    let md = std::fs::read_to_string(dir.join("out/suite.md")).expect("suite.md");
+    assert!(md.contains("| a_simple | missed_target |"), "{md}");
+    assert!(md.contains("`b_broken` failed:"), "{md}");
+    let csv = std::fs::read_to_string(dir.join("out/suite.csv")).expect("suite.csv");
+    assert_eq!(csv.lines().count(), 3, "{csv}");
+    let json: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(dir.join("out/suite.json")).expect("suite.json"),
+    )
+    .expect("JSON");
+    assert_eq!(json[0]["summary"]["steps"], 20);
+    let _ = std::fs::remove_dir_all(dir);
+}

@@ -19,6 +19,7 @@ use needle_host::run::{
 use needle_host::scene::{MAX_STEPS, Scene};
 use needle_host::setup;
 use needle_host::step::{ROWS, StepReport};
+use needle_host::suite::{self, SuiteOptions};
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
@@ -41,6 +42,10 @@ enum Command {
     /// Host process of a two-process run: publishes each step's compliance frame over iceoryx2
     /// shared memory and applies the command of `needle-controller` (run it with the same scene).
     Serve(ServeArgs),
+    /// The public suite: the two benchmark scenes and every scene of a folder, run with one
+    /// configuration; writes suite.md, suite.csv and suite.json (exit: 0 all reached, 4 a scene
+    /// missed its target, 5 an obstacle hit, 3 a run diverged, 1 a scene could not run).
+    Suite(SuiteArgs),
     /// The benchmark report: both scenes under both controllers plus the mesh, δq, blend
     /// distance and constraint-spacing sweeps; writes summary.md, CSVs and SVG/PNG charts.
     Report {
@@ -115,6 +120,28 @@ struct RunArgs {
     vtk_every: Option<usize>,
     #[command(flatten)]
     output: OutputArgs,
+}
+
+#[derive(Args)]
+struct SuiteArgs {
+    /// Folder of scene files (`*.toml`).
+    #[arg(long, default_value = "scenes/suite")]
+    dir: PathBuf,
+    /// Output folder (created if missing).
+    #[arg(long, default_value = "suite")]
+    out: PathBuf,
+    /// Only the folder's scenes, without the two benchmark scenes.
+    #[arg(long)]
+    no_benchmarks: bool,
+    /// Override a field of every scene (repeatable; the value is TOML).
+    #[arg(long = "set", value_name = "FIELD=VALUE")]
+    set: Vec<String>,
+    /// Cap on the steps of every run (default: the whole path).
+    #[arg(long, value_parser = steps_arg)]
+    steps: Option<usize>,
+    /// No progress on stderr.
+    #[arg(long)]
+    quiet: bool,
 }
 
 #[derive(Args)]
@@ -346,6 +373,72 @@ fn print_timing(t: &StageTiming, cpu_ms: f64) {
     );
 }
 
+fn suite_cmd(a: &SuiteArgs) -> ExitCode {
+    let mut overrides = Vec::new();
+    for kv in &a.set {
+        let Some((k, v)) = kv.split_once('=') else {
+            eprintln!("error: --set `{kv}`: expected FIELD=VALUE, e.g. inverse.delta_q=0.001");
+            return ExitCode::from(2);
+        };
+        overrides.push((k.trim().to_owned(), v.trim().to_owned()));
+    }
+    let opts = SuiteOptions {
+        dir: a.dir.clone(),
+        benchmarks: !a.no_benchmarks,
+        overrides,
+        steps: a.steps,
+    };
+    let scenes = match suite::scene_list(&opts) {
+        Ok(s) => s,
+        Err(e) => {
+            eprintln!("error: {}: {e}", a.dir.display());
+            return ExitCode::from(2);
+        }
+    };
+    let bar = if a.quiet {
+        ProgressBar::hidden()
+    } else {
+        ProgressBar::new(scenes.len() as u64)
+    };
+    bar.set_style(
+        ProgressStyle::with_template("{elapsed_precise} [{bar:30}] {pos}/{len} scenes  {msg}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar())
+            .progress_chars("=> "),
+    );
+    let mut rows = Vec::new();
+    for (name, file) in &scenes {
+        let row = suite::run_scene(name, file.as_deref(), &opts, |k| {
+            if k % 20 == 0 {
+                bar.set_message(format!("{name}: step {k}"));
+            }
+        });
+        let what = match (&row.summary, &row.failure) {
+            (Some(s), _) => format!(
+                "{} · e_mean {} · e_max {} · e_final {:.3} mm",
+                s.outcome.name(),
+                mm3(s.e_mean_mm),
+                mm3(s.e_max_mm),
+                s.e_final_mm
+            ),
+            (None, Some(why)) => format!("failed: {why}"),
+            (None, None) => String::new(),
+        };
+        bar.println(format!("{name}: {what}"));
+        bar.inc(1);
+        rows.push(row);
+    }
+    bar.finish_and_clear();
+    for line in suite::worst_case(&rows) {
+        println!("{line}");
+    }
+    if let Err(e) = suite::write_outputs(&rows, &opts.overrides, &a.out) {
+        eprintln!("error: {}", chain(&e));
+        return ExitCode::FAILURE;
+    }
+    println!("wrote {}/suite.md, suite.csv, suite.json", a.out.display());
+    ExitCode::from(suite::exit_code(&rows))
+}
+
 fn report_cmd(opts: &ReportOptions) -> ExitCode {
     match report(opts) {
         Ok(r) => {
@@ -472,6 +565,7 @@ fn main() -> ExitCode {
             progress: !quiet,
         }),
         Command::Run(a) => run_cmd(a),
+        Command::Suite(a) => suite_cmd(&a),
         Command::Serve(a) => serve_cmd(a),
     }
 }
