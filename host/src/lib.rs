@@ -17,6 +17,7 @@ pub mod mesh;
 pub mod open_loop;
 pub mod output;
 pub mod plan_check;
+pub mod provenance;
 pub mod proximity;
 pub mod replay;
 pub mod report;

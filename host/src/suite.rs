@@ -244,6 +244,7 @@ pub fn markdown(rows: &[SuiteRow], overrides: &[(String, String)]) -> String {
             format!(", with {}", set.join(", "))
         }
     );
+    let _ = writeln!(md, "{}\n", crate::provenance::Provenance::now().sentence());
     let _ = writeln!(md, "| {} |", HEADER.join(" | "));
     let _ = writeln!(md, "|{}", "---|".repeat(HEADER.len()));
     for r in rows {

@@ -39,6 +39,7 @@ fn intro(md: &mut String, s: &ReportSummary) {
         s.runs.len(),
         s.runs.iter().map(|r| r.wall_s).sum::<f64>(),
     );
+    let _ = writeln!(md, "{}\n", crate::provenance::Provenance::now().sentence());
     if s.quick {
         let _ = writeln!(
             md,

@@ -76,6 +76,8 @@ pub struct RunSummary {
     pub controller: ControllerKind,
     /// Gel nodes.
     pub gel_nodes: usize,
+    /// The build, machine and date that made this run.
+    pub provenance: crate::provenance::Provenance,
     /// Steps run.
     pub steps: usize,
     /// Steps planned.
@@ -272,6 +274,7 @@ impl Statistics {
             scene: plan.name.clone(),
             controller: end.controller,
             gel_nodes: world.gel.node_count(),
+            provenance: crate::provenance::Provenance::now(),
             steps: reports.len(),
             steps_planned: end.steps_planned,
             completed: reports.len() == end.steps_planned && end.stopped.is_none(),
