@@ -47,6 +47,9 @@ pub enum OutputFailure {
     /// The replay page could not be built or written (says why).
     #[error("replay: {0}")]
     Replay(String),
+    /// A chart could not be drawn (says why).
+    #[error("chart: {0}")]
+    Chart(String),
 }
 
 impl OutputError {

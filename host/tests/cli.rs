@@ -142,5 +142,8 @@ fn suite_runs_every_scene_of_a_folder_and_records_one_that_cannot_run() {
     )
     .expect("JSON");
     assert_eq!(json[0]["summary"]["steps"], 20);
+    // The chart, with the default `charts` feature: a PNG.
+    let png = std::fs::read(dir.join("out/suite.png")).expect("suite.png");
+    assert!(png.starts_with(b"\x89PNG"), "not a PNG");
     let _ = std::fs::remove_dir_all(dir);
 }

@@ -53,7 +53,8 @@ const COLORS: [RGBColor; 7] = [
     RGBColor(227, 119, 194),
 ];
 
-fn register_fonts() {
+/// Registers the embedded DejaVu Sans as plotters' `sans-serif` (once).
+pub(crate) fn register_fonts() {
     static ONCE: std::sync::Once = std::sync::Once::new();
     ONCE.call_once(|| {
         // DejaVu Sans ships inside the `dejavu` crate: no system font or fontconfig needed.
@@ -76,7 +77,7 @@ enum Chart<'a> {
 type DrawResult = Result<(), Box<dyn std::error::Error>>;
 
 /// The legend box of every chart (series labels on a translucent white box), in `position`.
-fn legend<'a, DB: DrawingBackend + 'a, CT: plotters::coord::CoordTranslate>(
+pub(crate) fn legend<'a, DB: DrawingBackend + 'a, CT: plotters::coord::CoordTranslate>(
     chart: &mut ChartContext<'a, DB, CT>,
     font: u32,
     position: SeriesLabelPosition,

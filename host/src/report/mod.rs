@@ -24,7 +24,7 @@
 //! embedded in the binary (no system font is needed).
 
 #[cfg(feature = "charts")]
-mod charts;
+pub(crate) mod charts;
 mod csv;
 mod plan;
 mod runner;

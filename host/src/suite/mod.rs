@@ -3,13 +3,17 @@
 //! settings and the same overrides for all), and what issue "controller" measures of each —
 //! outcome, e_mean, e_max, e_final, path deviation, min clearance, steps to the target against
 //! the nominal steps, Gauss-Seidel cap hits, CPU and wall time per step — in `suite.md`,
-//! `suite.csv` and `suite.json`, with the worst case over all scenes against the targets.
+//! `suite.csv` and `suite.json`, with the worst case over all scenes against the targets, and a
+//! chart of the errors per scene (`suite.svg`, `suite.png`).
 //!
 //! A scene that cannot be loaded or set up, or whose run fails or panics, is recorded with its
 //! reason and never stops the suite.
 
 // Units are written in brackets ([mm], [s]) as in the workspace style: not intra-doc links.
 #![allow(rustdoc::broken_intra_doc_links)]
+
+#[cfg(feature = "charts")]
+mod chart;
 
 use crate::output::OutputError;
 use crate::run::{Outcome, RunOptions, RunSummary, run};
@@ -265,7 +269,8 @@ pub fn markdown(rows: &[SuiteRow], overrides: &[(String, String)]) -> String {
     md
 }
 
-/// Writes `suite.md`, `suite.csv` and `suite.json` into `dir`.
+/// Writes `suite.md`, `suite.csv`, `suite.json` and (with the `charts` feature) the chart
+/// `suite.svg` / `suite.png` into `dir`.
 ///
 /// # Errors
 /// [`OutputError`] naming the file.
@@ -288,7 +293,10 @@ pub fn write_outputs(
     w.flush().map_err(|e| OutputError::new(&csv_path, e))?;
     let json = dir.join("suite.json");
     let text = serde_json::to_string_pretty(rows).map_err(|e| OutputError::new(&json, e))?;
-    std::fs::write(&json, text).map_err(|e| OutputError::new(&json, e))
+    std::fs::write(&json, text).map_err(|e| OutputError::new(&json, e))?;
+    #[cfg(feature = "charts")]
+    chart::write_chart(rows, dir)?;
+    Ok(())
 }
 
 /// The worst case over the suite, one line each (for the terminal).
