@@ -68,8 +68,16 @@ impl Setup {
     /// assert_eq!(s.params.interaction.puncture_force, scene.interaction.puncture_force);
     /// ```
     pub fn build(scene: &Scene) -> Result<Self, SetupError> {
+        let t0 = std::time::Instant::now();
         let path = scene.sampled_path().map_err(SetupError::Path)?;
         let mesh = gel_mesh(scene)?;
+        tracing::debug!(
+            nodes = mesh.node_count(),
+            elements = mesh.tet_count(),
+            "scene `{}`: gel mesh ready after {:.2} s",
+            scene.name,
+            t0.elapsed().as_secs_f64()
+        );
         let fixed = fixed_nodes(scene, &mesh)?;
         let gel = GelModel::try_new(mesh, &fixed, &gel_params(scene)).map_err(|source| {
             SetupError::Model {
@@ -95,6 +103,13 @@ impl Setup {
             q,
         })?;
         crate::plan_check::check(scene, &world)?;
+        tracing::info!(
+            "scene `{}` set up in {:.2} s: {} gel nodes, needle of {} beams",
+            scene.name,
+            t0.elapsed().as_secs_f64(),
+            world.gel.node_count(),
+            scene.needle.beams
+        );
         Ok(Self {
             world,
             params: step_params(scene),

@@ -147,3 +147,27 @@ fn suite_runs_every_scene_of_a_folder_and_records_one_that_cannot_run() {
     assert!(png.starts_with(b"\x89PNG"), "not a PNG");
     let _ = std::fs::remove_dir_all(dir);
 }
+
+#[test]
+fn logs_are_leveled_by_v_and_q_and_rust_log() {
+    let quiet = short_run(&[]).env_remove("RUST_LOG").output().expect("run");
+    assert!(!stderr(&quiet).contains("INFO"), "{}", stderr(&quiet));
+    let v = needle()
+        .arg("-v")
+        .args(["run", "simple", "--nodes", "300", "--quiet", "--steps", "3"])
+        .env_remove("RUST_LOG")
+        .output()
+        .expect("run -v");
+    let err = stderr(&v);
+    assert!(err.contains("INFO") && err.contains("set up in"), "{err}");
+    assert!(err.contains("ended after 3 of 3 steps"), "{err}");
+    let debug = short_run(&[])
+        .env("RUST_LOG", "debug")
+        .output()
+        .expect("run");
+    assert!(
+        stderr(&debug).contains("gel mesh ready"),
+        "{}",
+        stderr(&debug)
+    );
+}

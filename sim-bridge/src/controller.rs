@@ -284,9 +284,10 @@ impl<const M: usize> ControllerNode<M> {
         self.holding
     }
 
+    /// A line of the controller's log (`tracing`, level info; nothing unless `verbose`).
     fn log(&self, msg: core::fmt::Arguments<'_>) {
         if self.opts.verbose {
-            eprintln!("needle-controller: {msg}");
+            tracing::info!(target: "needle_controller", "{msg}");
         }
     }
 

@@ -33,6 +33,33 @@ use std::time::Duration;
 struct Cli {
     #[command(subcommand)]
     command: Command,
+    /// More log lines on stderr (-v: set-up and run ends, -vv: debug, -vvv: trace); `RUST_LOG`
+    /// (e.g. `RUST_LOG=needle_host=debug`) overrides both flags.
+    #[arg(short, long, global = true, action = clap::ArgAction::Count)]
+    verbose: u8,
+    /// Only errors in the log (no warnings such as holds).
+    #[arg(short = 'q', long = "log-quiet", global = true)]
+    log_quiet: bool,
+}
+
+/// The log on stderr through `tracing`: warnings by default, more with `-v`, errors only with
+/// `-q`, or what `RUST_LOG` says.
+fn init_logs(verbose: u8, quiet: bool) {
+    let level = match (quiet, verbose) {
+        (true, _) => "error",
+        (false, 0) => "warn",
+        (false, 1) => "info",
+        (false, 2) => "debug",
+        _ => "trace",
+    };
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(level));
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
+        .with_target(false)
+        .try_init();
 }
 
 #[derive(Subcommand)]
@@ -552,7 +579,9 @@ fn serve_cmd(a: ServeArgs) -> ExitCode {
 
 fn main() -> ExitCode {
     quiet_broken_pipe();
-    match Cli::parse().command {
+    let cli = Cli::parse();
+    init_logs(cli.verbose, cli.log_quiet);
+    match cli.command {
         Command::Report {
             out,
             quick,

@@ -26,6 +26,7 @@ pub(super) fn run_all(runs: &mut [(ReportRun, Scene)], steps_cap: Option<usize>,
         let line = format!("[{}/{total}] {what}: {}", r.id + 1, outcome(r));
         if bar.is_hidden() {
             if progress {
+                // Progress for a log without a terminal (CI): a line per run, like the bar's.
                 eprintln!("{line}");
             }
         } else {

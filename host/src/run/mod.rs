@@ -321,6 +321,15 @@ pub fn run_setup(
     for f in &mut books.files {
         f.finish(&summary)?;
     }
+    tracing::info!(
+        "run of `{}` ended after {} of {} steps: {} (e_mean {:.3} mm, e_final {:.3} mm)",
+        summary.scene,
+        summary.steps,
+        summary.steps_planned,
+        summary.outcome.name(),
+        summary.e_mean_mm,
+        summary.e_final_mm
+    );
     let error_by_depth = reports
         .iter()
         .filter(|r| r.inserted)

@@ -86,8 +86,8 @@ impl Transport<ROWS> for Remote<'_> {
                     if holding {
                         let h = start.elapsed();
                         self.held += h;
-                        eprintln!(
-                            "needle: command received after {:.0} ms: resuming at step {k}",
+                        tracing::warn!(
+                            "command received after {:.0} ms: resuming at step {k}",
                             h.as_secs_f64() * 1e3
                         );
                     }
@@ -97,8 +97,8 @@ impl Transport<ROWS> for Remote<'_> {
                     if !holding {
                         holding = true;
                         self.holds += 1;
-                        eprintln!(
-                            "needle: no command within {:.0} ms: holding the insertion at step {k} (c = {:.2} mm)",
+                        tracing::warn!(
+                            "no command within {:.0} ms: holding the insertion at step {k} (c = {:.2} mm)",
                             waited.as_secs_f64() * 1e3,
                             self.c
                         );
