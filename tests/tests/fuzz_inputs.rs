@@ -8,7 +8,7 @@ use needle_host::mesh::{TetMesh, box_mesh, read_gmsh_bytes, write_gmsh_ascii, wr
 use needle_host::scene::{SIMPLE_TOML, Scene};
 use needle_host::setup::Setup;
 use proptest::prelude::*;
-use proptest::test_runner::Config;
+use proptest::test_runner::{Config, RngSeed};
 
 /// Scene fields a user sets, numbers and strings alike.
 const FIELDS: &[&str] = &[
@@ -88,9 +88,14 @@ fn value() -> impl Strategy<Value = String> {
     ]
 }
 
-/// Seeded by proptest's defaults; a failing case is kept beside this file.
+/// A fixed seed, so that CI runs the same cases every time (a random seed made CI flaky the
+/// day it found the mshio panic below); another seed: change it here and run the test.
 fn config(cases: u32) -> Config {
-    Config::with_cases(cases)
+    Config {
+        cases,
+        rng_seed: RngSeed::Fixed(2026),
+        ..Config::default()
+    }
 }
 
 proptest! {
@@ -188,4 +193,18 @@ proptest! {
             prop_assert!(m.validate().is_ok());
         }
     }
+}
+
+/// Regression (found by the fuzz test above with a random seed): a binary file whose
+/// `$MeshFormat` declares a data size of 3 bytes made mshio 0.4.2 panic (`unimplemented!`).
+#[test]
+fn gmsh_binary_with_a_data_size_of_3_bytes_is_refused_not_a_panic() {
+    let mut bytes = Vec::new();
+    write_gmsh_binary(&small_box(), &mut bytes).expect("write");
+    let text = String::from_utf8_lossy(&bytes[..30]).into_owned();
+    assert!(text.starts_with("$MeshFormat\n4.1 1 8\n"), "{text}");
+    // "$MeshFormat\n4.1 1 8\n": the data size is byte 18.
+    bytes[18] = b'3';
+    let e = read_gmsh_bytes(&bytes).expect_err("refused");
+    assert!(e.to_string().contains("data size of 3 bytes"), "{e}");
 }

@@ -137,7 +137,7 @@ fn check_counts(file: &mshio::MshFile<u64, i32, f64>) -> Result<(), GmshError> {
 /// # Errors
 /// [`GmshError`] on parse, missing data or an invalid mesh.
 pub fn read_gmsh_bytes(bytes: &[u8]) -> Result<TetMesh, GmshError> {
-    let file = mshio::parse_msh_bytes(bytes).map_err(|e| GmshError::Parse(parse_message(&e)))?;
+    let file = parse(bytes)?;
     check_counts(&file)?;
     let nodes = file.data.nodes.as_ref().ok_or(GmshError::NoNodes)?;
     // Node tags and positions in file order.
@@ -217,6 +217,34 @@ pub fn read_gmsh_bytes(bytes: &[u8]) -> Result<TetMesh, GmshError> {
         return Err(GmshError::NoTetrahedra);
     }
     TetMesh::try_new(out_nodes, tets).map_err(GmshError::Mesh)
+}
+
+/// The data size a `$MeshFormat` header declares (the size of `size_t` in a binary file), when
+/// it can be read.
+fn declared_data_size(bytes: &[u8]) -> Option<u64> {
+    let head = &bytes[..bytes.len().min(256)];
+    let text = String::from_utf8_lossy(head);
+    let mut lines = text.lines().map(str::trim).skip_while(|l| l.is_empty());
+    if lines.next()? != "$MeshFormat" {
+        return None;
+    }
+    lines.next()?.split_whitespace().nth(2)?.parse().ok()
+}
+
+/// The file parsed by mshio. A data size other than 4 or 8 bytes is refused first (mshio 0.4.2
+/// panics on it), and a panic of the parser on other hostile input is turned into an error.
+fn parse(bytes: &[u8]) -> Result<mshio::MshFile<u64, i32, f64>, GmshError> {
+    if let Some(n) = declared_data_size(bytes)
+        && n != 4
+        && n != 8
+    {
+        return Err(GmshError::Parse(format!(
+            "$MeshFormat declares a data size of {n} bytes (4 or 8 are read)"
+        )));
+    }
+    std::panic::catch_unwind(|| mshio::parse_msh_bytes(bytes))
+        .map_err(|_| GmshError::Parse("the Gmsh parser failed on this file".to_owned()))?
+        .map_err(|e| GmshError::Parse(parse_message(&e)))
 }
 
 /// The first line of a parser error (its trace and the hex dump of the input are dropped).
