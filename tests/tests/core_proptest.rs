@@ -99,7 +99,12 @@ fn apply(f: &mut ComplianceFrame<M>, c: &Corruption) {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig { cases: 400, ..ProptestConfig::default() })]
+    // A fixed seed: CI runs the same cases every time (change it to explore others).
+    #![proptest_config(ProptestConfig {
+        cases: 400,
+        rng_seed: proptest::test_runner::RngSeed::Fixed(2026),
+        ..ProptestConfig::default()
+    })]
 
     /// A valid frame with up to three corruptions: the step either succeeds with finite output
     /// or returns an error; it never panics.
