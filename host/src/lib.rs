@@ -13,6 +13,7 @@ pub mod error;
 pub mod fem;
 pub mod free_motion;
 pub mod linalg;
+pub mod logs;
 pub mod mesh;
 pub mod open_loop;
 pub mod output;

@@ -59,15 +59,7 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     // Its events (sessions, rejected frames, holds) at info level unless --quiet; `RUST_LOG`
     // overrides.
-    let filter = tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| {
-        tracing_subscriber::EnvFilter::new(if cli.quiet { "warn" } else { "info" })
-    });
-    let _ = tracing_subscriber::fmt()
-        .with_env_filter(filter)
-        .with_writer(std::io::stderr)
-        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
-        .with_target(false)
-        .try_init();
+    needle_host::logs::init(if cli.quiet { "warn" } else { "info" });
     let scene = match Scene::open(&cli.scene) {
         Ok(s) => s,
         Err(e) => {
