@@ -27,8 +27,8 @@ pub use ik::{IkError, IkParams, IkReport, solve_ik};
 pub use inverse::{Controller, InverseParams, JacobianMode, Objective, StepError};
 pub use kinematics::{DhChain, DhJoint, JointLimit, Pose};
 pub use payload::{
-    Command, ComplianceFrame, GroupKind, NOBS, ObsIndex, RowGroup, SolverReport, StatusFlags,
-    VERSION, ValidationError,
+    Command, ComplianceFrame, GroupKind, NCLEAR, NOBS, ObsIndex, RowGroup, SolverReport,
+    StatusFlags, VERSION, ValidationError,
 };
 #[cfg(feature = "alloc")]
 pub use zeroed::boxed_zeroed;

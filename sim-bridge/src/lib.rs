@@ -5,7 +5,7 @@
 //!   [`needle_core::inverse::Controller`] called directly) or [`SharedMemoryHost`] (publish the
 //!   frame, wait lock-step for the command answering it);
 //! - [`payload`]: the core's payloads as iceoryx2 zero-copy payloads (transparent newtypes,
-//!   versioned type names `needle.ComplianceFrame.v1`, `needle.Command.v1`) and their headers;
+//!   versioned type names `needle.ComplianceFrame.v2`, `needle.Command.v2`) and their headers;
 //! - [`shm`]: the two publish-subscribe services, dead-node cleanup, the host's end;
 //! - [`controller`]: the core's end — the fixed-rate controller loop with its faults (hold on a
 //!   missing frame, rejected frames counted, restarted hosts picked up).

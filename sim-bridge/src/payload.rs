@@ -177,6 +177,13 @@ pub fn copy_used<const M: usize>(src: &ComplianceFrame<M>, dst: &mut ComplianceF
     dst.insertion_depth = src.insertion_depth;
     dst.q = src.q;
     dst.dt = src.dt;
+    let k = src.clearances();
+    dst.clearance_count = src.clearance_count;
+    dst.reserved = src.reserved;
+    dst.clearance_free[..k].copy_from_slice(&src.clearance_free[..k]);
+    for (d, s) in dst.clearance_c.iter_mut().zip(&src.clearance_c).take(k) {
+        d[..m].copy_from_slice(&s[..m]);
+    }
 }
 
 #[cfg(test)]
@@ -202,11 +209,11 @@ mod tests {
         unsafe {
             assert_eq!(
                 <FramePayload<8> as ZeroCopySend>::type_name(),
-                "needle.ComplianceFrame.v1"
+                "needle.ComplianceFrame.v2"
             );
             assert_eq!(
                 <CommandPayload<8> as ZeroCopySend>::type_name(),
-                "needle.Command.v1"
+                "needle.Command.v2"
             );
         }
     }

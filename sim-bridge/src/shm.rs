@@ -1,7 +1,7 @@
 //! iceoryx2 publish-subscribe services for frames (host → core) and commands (core → host).
 //!
-//! Two services per bridge instance, named `<instance>/needle.ComplianceFrame.v1` and
-//! `<instance>/needle.Command.v1` (the instance defaults to `needle`; tests use a unique one so
+//! Two services per bridge instance, named `<instance>/needle.ComplianceFrame.v2` and
+//! `<instance>/needle.Command.v2` (the instance defaults to `needle`; tests use a unique one so
 //! that parallel runs never meet). Both sides open-or-create them with the same settings
 //! ([`frame_service`], [`command_service`]).
 //!
@@ -83,12 +83,12 @@ impl Default for BridgeConfig {
 }
 
 impl BridgeConfig {
-    /// The frame service's name, `<instance>/needle.ComplianceFrame.v1`.
+    /// The frame service's name, `<instance>/needle.ComplianceFrame.v2`.
     pub fn frame_service_name(&self) -> String {
         format!("{}/{FRAME_TYPE_NAME}", self.instance)
     }
 
-    /// The command service's name, `<instance>/needle.Command.v1`.
+    /// The command service's name, `<instance>/needle.Command.v2`.
     pub fn command_service_name(&self) -> String {
         format!("{}/{COMMAND_TYPE_NAME}", self.instance)
     }

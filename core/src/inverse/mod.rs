@@ -31,6 +31,11 @@
 //!    `q + Δq` into the joint limits; both are reported as saturation flags;
 //! 7. final solve at `q + Δq` (started from the same prediction) → the `λ` the host applies.
 //!
+//! Steps 5 and 6 are the paper's update (`InverseParams::method = StepMethod::Paper`). The default,
+//! [`StepMethod::Qp`], replaces them by one small quadratic program (`qp_step.rs`): the tip error
+//! and the two angles' rotation vectors as least squares with the same damping, the joint limits
+//! and speeds as bounds, the trust region and the frame's obstacle clearances as linear rows.
+//!
 //! That is 1 + 6 + 1 = 8 solves. The base solve is done at this frame's `q` rather than reusing
 //! the previous step's state as in the paper's Algorithm 1 (line 5): the previous state was
 //! computed before this step's free motion, so differencing against it would mix this step's
@@ -43,6 +48,7 @@
 mod error;
 mod objective;
 mod params;
+mod qp_step;
 mod solves;
 mod step;
 #[cfg(test)]
@@ -50,7 +56,8 @@ mod tests;
 
 pub use error::StepError;
 pub use objective::{Objective, blend_factor, evaluate_objective};
-pub use params::{InverseParams, JacobianMode};
+pub use params::{InverseParams, JacobianMode, StepMethod};
+pub use qp_step::QP_MAX_JOINTS;
 pub use solves::base_violation;
 
 use crate::constraint::{ActiveSet, BlockGs};

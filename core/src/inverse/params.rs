@@ -28,6 +28,24 @@ pub enum JacobianMode {
     Hybrid,
 }
 
+/// How the joint update is chosen from the Jacobian.
+///
+/// `#[repr(u8)]` with `Paper = 0`, so that a zeroed [`InverseParams`] holds a valid method.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[repr(u8)]
+pub enum StepMethod {
+    /// The paper's update: damped least squares `Δq = −Jᵀ (J Jᵀ + ε² I)⁻¹ T`, then scaled into
+    /// the trust region and the speed limits, clamped into the joint limits and shortened to
+    /// the best multiple for the linear model. Obstacles are not seen.
+    Paper = 0,
+    /// The same damped least squares posed as a small quadratic program ([`crate::qp`]): joint
+    /// limits and joint speeds as bounds, the trust region on the needle base as linear rows,
+    /// and every obstacle clearance of the frame as a linearised inequality
+    /// `d_k + G_k Δq ≥ clearance_margin` (`G_k` from the same finite-difference columns as `J`),
+    /// so the step never plans the needle into an obstacle to first order.
+    Qp,
+}
+
 /// Tuning of the inverse update, `Default` gives the documented values.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct InverseParams {
@@ -75,10 +93,17 @@ pub struct InverseParams {
     /// divided by `δq`, and a relative solve error of 1e-5 is far below the forward difference's
     /// own truncation error (of order `δq`). The base and final solves use `gs.tolerance`.
     pub jacobian_tolerance: f64,
+    /// How the joint update is chosen (default [`StepMethod::Qp`]).
+    pub method: StepMethod,
+    /// Smallest clearance the [`StepMethod::Qp`] update plans between the needle's centre line
+    /// and an obstacle's surface [mm] (default 0.2).
+    pub clearance_margin: f64,
 }
 
 // SAFETY: `#[repr(u8)]` and the variant `Solve` has the discriminant 0.
 unsafe impl crate::zeroed::Zeroable for JacobianMode {}
+// SAFETY: `#[repr(u8)]` and the variant `Paper` has the discriminant 0.
+unsafe impl crate::zeroed::Zeroable for StepMethod {}
 
 crate::zeroed::impl_zeroable!(InverseParams {
     joint_step,
@@ -96,6 +121,8 @@ crate::zeroed::impl_zeroable!(InverseParams {
     max_base_step,
     jacobian,
     jacobian_tolerance,
+    method,
+    clearance_margin,
 });
 
 impl Default for InverseParams {
@@ -123,6 +150,8 @@ impl Default for InverseParams {
             jacobian: JacobianMode::Hybrid,
             presolve_tolerance: 1e-5,
             jacobian_tolerance: 1e-5,
+            method: StepMethod::Qp,
+            clearance_margin: 0.2,
         }
     }
 }
@@ -156,6 +185,7 @@ impl InverseParams {
             (nonneg(self.presolve_tolerance), "presolve_tolerance"),
             (nonneg(self.jacobian_tolerance), "jacobian_tolerance"),
             (self.max_base_step > 0.0, "max_base_step"),
+            (nonneg(self.clearance_margin), "clearance_margin"),
         ];
         for (ok, name) in checks {
             if !ok {

@@ -3,7 +3,7 @@
 use super::solves::{Start, Target};
 use super::{Controller, Objective, StepError, evaluate_objective};
 use crate::constraint::SolveReport;
-use crate::payload::{Command, ComplianceFrame, SolverReport, StatusFlags, VERSION};
+use crate::payload::{Command, ComplianceFrame, NCLEAR, SolverReport, StatusFlags, VERSION};
 use nalgebra::{Matrix4, SMatrix, SVector, Vector4};
 
 /// Largest ratio of the previous answer's force scale to a frame's `‖δ‖∞` for which the previous
@@ -12,7 +12,24 @@ use nalgebra::{Matrix4, SMatrix, SVector, Vector4};
 pub const WARM_START_SCALE: f64 = 1e6;
 
 /// The Jacobian `∂T/∂q`, 4 × N [mm/rad].
-type Jacobian<const N: usize> = SMatrix<f64, 4, N>;
+pub(super) type Jacobian<const N: usize> = SMatrix<f64, 4, N>;
+
+/// What the QP update uses beyond `J`, from the same finite-difference columns: the frame's
+/// obstacle clearances and the two rotation vectors of the angular objective, at the frame's
+/// joints and their derivatives.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Clearances<const N: usize> {
+    /// Number of clearances used (the frame's `clearance_count`).
+    pub count: usize,
+    /// `d_k(q)` [mm].
+    pub value: [f64; NCLEAR],
+    /// `∂d_k/∂q_i` [mm/rad].
+    pub gradient: [[f64; N]; NCLEAR],
+    /// `∂φ1/∂q` (tip direction to target tangent) [rad/rad].
+    pub phi1: SMatrix<f64, 3, N>,
+    /// `∂φ2/∂q` (base direction to entry direction) [rad/rad].
+    pub phi2: SMatrix<f64, 3, N>,
+}
 
 impl<const M: usize, const N: usize> Controller<M, N> {
     /// One inverse step for `frame`, written into the caller-owned `cmd`. Allocates nothing.
@@ -67,8 +84,8 @@ impl<const M: usize, const N: usize> Controller<M, N> {
             self.hold(m, &obj0, &mut report);
             (frame.q, base_rep)
         } else {
-            let jac = self.jacobian(frame, &obj0, &mut report);
-            let q_new = self.newton_step(frame, &jac, &obj0, &mut report);
+            let (jac, clear) = self.jacobian(frame, &obj0, &mut report);
+            let q_new = self.newton_step(frame, &jac, &clear, &obj0, &mut report);
             let final_rep = self.final_solve(frame, &q_new, &mut report);
             (q_new, final_rep)
         };
@@ -142,8 +159,18 @@ impl<const M: usize, const N: usize> Controller<M, N> {
         frame: &ComplianceFrame<M, N>,
         obj0: &Objective,
         report: &mut SolverReport<N>,
-    ) -> Jacobian<N> {
+    ) -> (Jacobian<N>, Clearances<N>) {
         let p = self.params;
+        let mut clear = Clearances {
+            count: frame.clearances(),
+            value: [0.0; NCLEAR],
+            gradient: [[0.0; N]; NCLEAR],
+            phi1: SMatrix::zeros(),
+            phi2: SMatrix::zeros(),
+        };
+        for k in 0..clear.count {
+            clear.value[k] = frame.clearance(k, &self.lambda.base);
+        }
         let linearize = match p.jacobian {
             super::JacobianMode::Solve => false,
             super::JacobianMode::Linearized => true,
@@ -168,23 +195,54 @@ impl<const M: usize, const N: usize> Controller<M, N> {
                 jac[(r, i)] = (ti.t[r] - obj0.t[r]) / p.joint_step;
             }
             jac[(3, i)] = obj0.angle_derivative(&ti, p.joint_step, p.angle_weight);
+            for r in 0..3 {
+                clear.phi1[(r, i)] = (ti.phi1[r] - obj0.phi1[r]) / p.joint_step;
+                clear.phi2[(r, i)] = (ti.phi2[r] - obj0.phi2[r]) / p.joint_step;
+            }
+            for k in 0..clear.count {
+                clear.gradient[k][i] =
+                    (frame.clearance(k, &self.lambda.work) - clear.value[k]) / p.joint_step;
+            }
         }
-        jac
+        (jac, clear)
     }
 
-    /// Stage 4: the damped least-squares step ([`Self::damped_step`]) brought within the trust
-    /// region, the speed and the joint limits ([`Self::limit_step`]). Returns the commanded
-    /// joints.
+    /// Stage 4: with [`super::StepMethod::Paper`], the damped least-squares step
+    /// ([`Self::damped_step`]) brought within the trust region, the speed and the joint limits
+    /// ([`Self::limit_step`]); with [`super::StepMethod::Qp`] (the default), the quadratic
+    /// program of `qp_step.rs` with those limits and the obstacle clearances as rows. Returns the
+    /// commanded joints.
     fn newton_step(
         &self,
         frame: &ComplianceFrame<M, N>,
         jac: &Jacobian<N>,
+        clear: &Clearances<N>,
         obj0: &Objective,
         report: &mut SolverReport<N>,
     ) -> [f64; N] {
         let t0 = Vector4::from(obj0.t);
-        let dq = self.damped_step(&frame.q, jac, &t0, report);
-        self.limit_step(frame, jac, &t0, dq, report)
+        match self.params.method {
+            super::StepMethod::Paper => {
+                let dq = self.damped_step(&frame.q, jac, &t0, report);
+                self.limit_step(frame, jac, &t0, dq, report)
+            }
+            super::StepMethod::Qp => self.qp_step(frame, jac, clear, obj0, report),
+        }
+    }
+
+    /// `ε²` of the damped least squares: `damping²`, raised towards `damping_max²` when the
+    /// smallest singular value of `J` falls below `singular_threshold`.
+    pub(super) fn damping_squared(&self, jac: &Jacobian<N>, report: &mut SolverReport<N>) -> f64 {
+        let p = &self.params;
+        let jjt: Matrix4<f64> = jac * jac.transpose();
+        let sigma_min = libm::sqrt(smallest_eigenvalue(&jjt).max(0.0));
+        let mut eps2 = p.damping * p.damping;
+        if sigma_min < p.singular_threshold {
+            let r = sigma_min / p.singular_threshold;
+            eps2 += (1.0 - r * r) * p.damping_max * p.damping_max;
+            report.flags |= StatusFlags::NEAR_SINGULAR;
+        }
+        eps2
     }
 
     /// `Δq = −Jᵀ (J Jᵀ + ε² I)⁻¹ T` with `ε` raised near a singularity. Joints at a limit that
@@ -199,15 +257,7 @@ impl<const M: usize, const N: usize> Controller<M, N> {
         t0: &Vector4<f64>,
         report: &mut SolverReport<N>,
     ) -> SVector<f64, N> {
-        let p = &self.params;
-        let jjt: Matrix4<f64> = jac * jac.transpose();
-        let sigma_min = libm::sqrt(smallest_eigenvalue(&jjt).max(0.0));
-        let mut eps2 = p.damping * p.damping;
-        if sigma_min < p.singular_threshold {
-            let r = sigma_min / p.singular_threshold;
-            eps2 += (1.0 - r * r) * p.damping_max * p.damping_max;
-            report.flags |= StatusFlags::NEAR_SINGULAR;
-        }
+        let eps2 = self.damping_squared(jac, report);
         let mut jac_free = *jac;
         let mut dq = SVector::<f64, N>::zeros();
         for _ in 0..=N {

@@ -1,7 +1,7 @@
 //! Unit tests of the inverse update.
 #![allow(clippy::expect_used, clippy::unwrap_used, clippy::panic)]
 
-use super::{Controller, InverseParams, blend_factor};
+use super::{Controller, InverseParams, StepMethod, blend_factor};
 use crate::kinematics::DhChain;
 use crate::payload::{Command, ComplianceFrame};
 use crate::synthetic::{rigid_needle_frame, rv1a_on_turntable};
@@ -77,4 +77,103 @@ fn seven_joint_newton_reduces_the_objective() {
     assert!(norms[0] > 1.0, "a non-trivial start: {norms:?}");
     assert!(norms.windows(2).all(|w| w[1] <= w[0]), "{norms:?}");
     assert!(norms[norms.len() - 1] < 1e-2, "{norms:?}");
+}
+
+/// The tip's displacement of one step, from the objective before and after (`e = target − tip`
+/// with a fixed target).
+fn tip_motion(rep: &crate::payload::SolverReport) -> nalgebra::Vector3<f64> {
+    nalgebra::Vector3::from_fn(|r, _| rep.objective[r] - rep.objective_after[r])
+}
+
+/// An obstacle across the tip's way: a clearance row that falls as the tip moves the way the
+/// paper's update takes it, set so that this update ends half its step inside the margin. The
+/// QP update keeps the clearance at the margin (to first order: the rows are exact in `λ`, `λ`
+/// is nonlinear in `q` only through the robot's kinematics) and says so in its flags; the
+/// paper's update, blind to obstacles, crosses it.
+#[test]
+fn qp_step_keeps_a_clearance_the_paper_step_crosses() {
+    use crate::payload::{ObsIndex, StatusFlags};
+    let chain = DhChain::rv1a();
+    let mut frame = ComplianceFrame::<12>::new_boxed();
+    let mut cmd = Command::<12>::new_boxed();
+    let q_target = [0.2, 0.35, 2.0, 0.1, 0.6, -0.2];
+    let q_free = [0.25, 0.3, 2.05, 0.05, 0.55, -0.25];
+    rigid_needle_frame(&mut frame, &chain, &q_free, &q_target, 120.0);
+    let paper = InverseParams {
+        method: StepMethod::Paper,
+        ..InverseParams::default()
+    };
+    let rep = Controller::<12>::new_boxed(chain, paper)
+        .step(&frame, &mut cmd)
+        .expect("valid");
+    let motion = tip_motion(&rep);
+    let (u, travel) = (motion.normalize(), motion.norm());
+    assert!(travel > 1.0, "a real step: {travel} mm");
+    // d(λ) = d_free − u · (C_tip λ); at the frame's joints the tip is target − e.
+    let margin = InverseParams::default().clearance_margin;
+    let m = frame.rows();
+    let tip0: nalgebra::Vector3<f64> = nalgebra::Vector3::from_fn(|r, _| {
+        frame.o_free[ObsIndex::TARGET_POINT + r] - rep.objective[r]
+    });
+    let free_tip: nalgebra::Vector3<f64> =
+        nalgebra::Vector3::from_fn(|r, _| frame.o_free[ObsIndex::TIP_POSITION + r]);
+    let d0 = margin + 0.5 * travel;
+    frame.clearance_count = 1;
+    frame.clearance_free[0] = d0 + u.dot(&(tip0 - free_tip));
+    for j in 0..m {
+        frame.clearance_c[0][j] = -(0..3)
+            .map(|r| u[r] * frame.c[ObsIndex::TIP_POSITION + r][j])
+            .sum::<f64>();
+    }
+    frame.validate().expect("a valid frame with a clearance");
+
+    let rep = Controller::<12>::new_boxed(chain, paper)
+        .step(&frame, &mut cmd)
+        .expect("valid");
+    let d_paper = frame.clearance(0, &cmd.lambda);
+    assert!(d_paper < margin - 0.4 * travel, "paper: {d_paper} mm");
+    assert_eq!(rep.flags & StatusFlags::CLEARANCE_ACTIVE, 0);
+
+    let rep = Controller::<12>::new_boxed(chain, InverseParams::default())
+        .step(&frame, &mut cmd)
+        .expect("valid");
+    let d_qp = frame.clearance(0, &cmd.lambda);
+    std::println!("travel {travel:.3} mm, clearance: paper {d_paper:.4} mm, QP {d_qp:.4} mm");
+    assert!(
+        (d_qp - margin).abs() < 0.02 * travel,
+        "QP: {d_qp} mm against the margin {margin}"
+    );
+    assert_ne!(rep.flags & StatusFlags::CLEARANCE_ACTIVE, 0);
+    // And it still went where it could: most of the way it could go along the obstacle.
+    assert!(tip_motion(&rep).norm() > 0.3 * travel);
+}
+
+/// Joints at their limits and a target beyond them: the QP update never commands a joint past
+/// a limit or faster than its speed limit, and flags the limit.
+#[test]
+fn qp_step_stays_within_joint_limits_and_speeds() {
+    use crate::payload::StatusFlags;
+    let mut chain = DhChain::rv1a();
+    let q_free = [0.25, 0.3, 2.05, 0.05, 0.55, -0.25];
+    let q_target = [0.6, 0.7, 2.4, 0.4, 0.9, 0.2];
+    for (l, q) in chain.limits.iter_mut().zip(&q_free) {
+        l.upper = q + 0.01;
+        l.max_speed = 0.05;
+    }
+    let mut frame = ComplianceFrame::<12>::new_boxed();
+    let mut cmd = Command::<12>::new_boxed();
+    rigid_needle_frame(&mut frame, &chain, &q_free, &q_target, 120.0);
+    frame.dt = 0.04;
+    let rep = Controller::<12>::new_boxed(chain, InverseParams::default())
+        .step(&frame, &mut cmd)
+        .expect("valid");
+    for i in 0..6 {
+        let l = &chain.limits[i];
+        assert!(cmd.q[i] <= l.upper + 1e-12 && cmd.q[i] >= l.lower - 1e-12);
+        assert!((cmd.q[i] - q_free[i]).abs() <= l.max_speed * frame.dt * (1.0 + 1e-9));
+    }
+    assert_ne!(
+        rep.flags & (StatusFlags::SATURATED_LIMIT | StatusFlags::SATURATED_SPEED),
+        0
+    );
 }

@@ -24,6 +24,11 @@ impl StatusFlags {
     /// The step was scaled down to the trust region on the needle-base motion
     /// (`InverseParams::max_base_step`).
     pub const STEP_LIMITED: u32 = 1 << 6;
+    /// An obstacle clearance row bounded the step ([`crate::inverse::StepMethod::Qp`]).
+    pub const CLEARANCE_ACTIVE: u32 = 1 << 7;
+    /// The quadratic program of the step had no solution, even with the clearance rows relaxed
+    /// to "no closer": the joints were held.
+    pub const QP_FAILED: u32 = 1 << 8;
 }
 
 /// Report of one inverse step, carried in [`Command::report`].
@@ -63,8 +68,8 @@ impl<const N: usize> Default for SolverReport<N> {
     }
 }
 
-/// The core's answer to one frame (core → host); `N` joints (default 6, the v1 layout of
-/// `needle.Command.v1`).
+/// The core's answer to one frame (core → host); `N` joints (default 6, the v2 layout of
+/// `needle.Command.v2`).
 #[derive(Clone, Copy, Debug)]
 #[repr(C)]
 pub struct Command<const M: usize, const N: usize = 6> {

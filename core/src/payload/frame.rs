@@ -1,12 +1,12 @@
 //! The compliance frame: everything the core needs for one inverse step (host → core).
 
-use super::{NOBS, Payload, RowGroup, VERSION};
+use super::{NCLEAR, NOBS, Payload, RowGroup, VERSION};
 use core::mem::MaybeUninit;
 
 /// One compliance frame: everything the core needs for one inverse step (host → core).
 ///
-/// `N` is the robot's joint count (default 6, the RV-1A); with `N = 6` the layout is the v1
-/// layout of `needle.ComplianceFrame.v1` (the transports carry only that one).
+/// `N` is the robot's joint count (default 6, the RV-1A); with `N = 6` the layout is the v2
+/// layout of `needle.ComplianceFrame.v2` (the transports carry only that one).
 ///
 /// `M` is the row capacity; only the first `m` rows/columns of the arrays are used. At `M = 192`
 /// a frame is about 320 KiB: never build one on the stack, use [`Self::init_in_place`] on storage
@@ -46,6 +46,18 @@ pub struct ComplianceFrame<const M: usize, const N: usize = 6> {
     pub q: [f64; N],
     /// Robot control period [s].
     pub dt: f64,
+    /// Number of obstacle clearances used in `clearance_free` and `clearance_c`
+    /// (`≤ NCLEAR`; 0 before puncture or without obstacles).
+    pub clearance_count: u32,
+    /// Reserved, 0.
+    pub reserved: u32,
+    /// Clearance of the needle to each obstacle after free motion: distance from the obstacle's
+    /// centre to the nearest point of the inserted needle's centre line, minus the obstacle's
+    /// radius [mm] (negative: inside).
+    pub clearance_free: [f64; NCLEAR],
+    /// Clearance sensitivity to first order, `clearance = clearance_free + clearance_c λ`
+    /// (row-major, `m` columns used) [mm/N or mm/(N·mm)].
+    pub clearance_c: [[f64; M]; NCLEAR],
 }
 
 crate::zeroed::impl_zeroable!(ComplianceFrame<const M, const N> {
@@ -64,6 +76,10 @@ crate::zeroed::impl_zeroable!(ComplianceFrame<const M, const N> {
     insertion_depth,
     q,
     dt,
+    clearance_count,
+    reserved,
+    clearance_free,
+    clearance_c,
 });
 
 impl<const M: usize, const N: usize> Payload for ComplianceFrame<M, N> {
@@ -121,6 +137,24 @@ impl<const M: usize, const N: usize> ComplianceFrame<M, N> {
     /// The used row groups (clamped to the capacity; call [`Self::validate`] first).
     pub fn used_groups(&self) -> &[RowGroup] {
         &self.groups[..(self.group_count as usize).min(M)]
+    }
+
+    /// The used clearances: `clearance_count` clamped to [`NCLEAR`].
+    pub fn clearances(&self) -> usize {
+        (self.clearance_count as usize).min(NCLEAR)
+    }
+
+    /// Clearance `k` for `λ`: `clearance_free[k] + clearance_c[k] · λ` over the first `m`
+    /// rows [mm].
+    pub fn clearance(&self, k: usize, lambda: &[f64]) -> f64 {
+        let m = self.rows().min(M).min(lambda.len());
+        let row = &self.clearance_c[k.min(NCLEAR - 1)];
+        self.clearance_free[k.min(NCLEAR - 1)]
+            + row[..m]
+                .iter()
+                .zip(&lambda[..m])
+                .map(|(a, b)| a * b)
+                .sum::<f64>()
     }
 
     /// The observed 3-vector starting at `index` (one of the [`ObsIndex`](super::ObsIndex)

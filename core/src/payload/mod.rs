@@ -58,13 +58,13 @@ fn reset<T: Payload>(value: &mut T) {
 }
 
 /// Layout version of [`ComplianceFrame`] and [`Command`]; bump it when a field changes.
-pub const VERSION: u32 = 1;
+pub const VERSION: u32 = 2;
 
 /// Service-name style identifier of the frame layout (for transports).
-pub const FRAME_TYPE_NAME: &str = "needle.ComplianceFrame.v1";
+pub const FRAME_TYPE_NAME: &str = "needle.ComplianceFrame.v2";
 
 /// Service-name style identifier of the command layout (for transports).
-pub const COMMAND_TYPE_NAME: &str = "needle.Command.v1";
+pub const COMMAND_TYPE_NAME: &str = "needle.Command.v2";
 
 /// Number of joints of the RV-1A, the default `N` of the payloads and of the controller.
 ///
@@ -75,6 +75,10 @@ pub const JOINTS: usize = 6;
 
 /// Number of needle-base rows χ at the start of every frame.
 pub const BASE_ROWS: usize = 6;
+
+/// Capacity of the obstacle clearances of a frame (the nearest obstacles when a scene has
+/// more).
+pub const NCLEAR: usize = 8;
 
 /// Number of observation rows (5 observed 3-vectors).
 pub const NOBS: usize = 15;
@@ -216,12 +220,13 @@ mod tests {
     use super::*;
     use core::mem::{align_of, offset_of, size_of};
 
-    /// The `#[repr(C)]` layout of the v1 payloads (type names `needle.ComplianceFrame.v1`,
-    /// `needle.Command.v1`): field offsets and sizes at `M = 192` as measured on the layout
-    /// before the payload types became generic over the joint count. A change here is a new
-    /// layout and needs a new `VERSION`.
+    /// The `#[repr(C)]` layout of the v2 payloads (type names `needle.ComplianceFrame.v2`,
+    /// `needle.Command.v2`): field offsets and sizes at `M = 192` as measured on the layout
+    /// before the payload types became generic over the joint count (v1), with the obstacle
+    /// clearances appended at the end of the frame (v2). A change here is a new layout and
+    /// needs a new `VERSION`.
     #[test]
-    fn v1_layout_is_unchanged() {
+    fn v2_layout_is_unchanged() {
         type F = ComplianceFrame<192>;
         let frame = [
             offset_of!(F, version),
@@ -239,12 +244,16 @@ mod tests {
             offset_of!(F, insertion_depth),
             offset_of!(F, q),
             offset_of!(F, dt),
+            offset_of!(F, clearance_count),
+            offset_of!(F, reserved),
+            offset_of!(F, clearance_free),
+            offset_of!(F, clearance_c),
             size_of::<F>(),
             align_of::<F>(),
         ];
         let expected = [
             0, 4, 8, 16, 20, 24, 6168, 301080, 302616, 302640, 302712, 302832, 325872, 325880,
-            325928, 325936, 8,
+            325928, 325936, 325940, 325944, 326008, 338296, 8,
         ];
         assert_eq!(frame, expected);
         type C = Command<192>;

@@ -1,7 +1,7 @@
 //! Checks on receipt: every payload that crossed a process boundary is validated before use
 //! ([`ComplianceFrame::validate`], [`Command::validate`]); what is wrong is a [`ValidationError`].
 
-use super::{BASE_ROWS, Command, ComplianceFrame, GroupKind, RowGroup, VERSION};
+use super::{BASE_ROWS, Command, ComplianceFrame, GroupKind, NCLEAR, RowGroup, VERSION};
 use core::fmt;
 
 /// What is wrong with a group layout (see [`ValidationError::GroupLayout`]).
@@ -274,6 +274,22 @@ impl<const M: usize, const N: usize> ComplianceFrame<M, N> {
             return Err(ValidationError::OutOfRange {
                 field: "insertion_depth",
             });
+        }
+        let k = self.clearance_count as usize;
+        if k > NCLEAR {
+            return Err(ValidationError::CapacityExceeded {
+                requested: k,
+                capacity: NCLEAR,
+            });
+        }
+        check_finite("clearance_free", &self.clearance_free[..k])?;
+        for (j, row) in self.clearance_c.iter().enumerate().take(k) {
+            if let Some(i) = row[..m].iter().position(|x| !x.is_finite()) {
+                return Err(ValidationError::NonFinite {
+                    field: "clearance_c",
+                    index: j * M + i,
+                });
+            }
         }
         check_rotation(&self.r_free)
     }

@@ -3,7 +3,7 @@
 use super::{PoseSpec, Scene};
 use nalgebra::{Rotation3, Vector3};
 use needle_core::constraint::GsParams;
-use needle_core::inverse::{InverseParams, JacobianMode};
+use needle_core::inverse::{InverseParams, JacobianMode, StepMethod};
 use needle_core::kinematics::{DhChain, DhJoint, JointLimit, Pose};
 
 impl PoseSpec {
@@ -63,6 +63,11 @@ impl Scene {
             damping: v.damping,
             tolerance: v.tolerance,
             max_base_step: v.max_base_step,
+            method: match v.method {
+                super::MethodSpec::Qp => StepMethod::Qp,
+                super::MethodSpec::Paper => StepMethod::Paper,
+            },
+            clearance_margin: v.clearance_margin,
             jacobian: match v.jacobian {
                 super::JacobianSpec::Solve => JacobianMode::Solve,
                 super::JacobianSpec::Linearized => JacobianMode::Linearized,

@@ -8,7 +8,7 @@
 //! background factorisation (a run's choices; the FE model's defaults are the static Newton step,
 //! synchronous); the needle's material and the path sampling have no other home.
 
-use super::{FixedSpec, JacobianSpec};
+use super::{FixedSpec, JacobianSpec, MethodSpec};
 use crate::free_motion::GelParams;
 use crate::step::{Insertion, Interaction, StepParams};
 use needle_core::inverse::InverseParams;
@@ -81,6 +81,12 @@ pub(super) fn default_inverse_tol() -> f64 {
 }
 pub(super) fn default_max_base_step() -> f64 {
     5.0
+}
+pub(super) fn default_method() -> MethodSpec {
+    MethodSpec::Qp
+}
+pub(super) fn default_clearance_margin() -> f64 {
+    InverseParams::default().clearance_margin
 }
 pub(super) fn default_jacobian() -> JacobianSpec {
     JacobianSpec::Hybrid

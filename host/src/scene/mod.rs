@@ -313,6 +313,26 @@ pub struct InverseSpec {
     /// Trust region of the Newton step: the needle base moves at most this far per step [mm].
     #[serde(default = "default_max_base_step")]
     pub max_base_step: f64,
+    /// How the joint update is chosen: `"qp"` (a quadratic program with the joint limits and
+    /// speeds as bounds, the trust region and every obstacle clearance as linear rows; the
+    /// default) or `"paper"` (the paper's damped least squares, scaled and clamped after the
+    /// fact, blind to obstacles).
+    #[serde(default = "default_method")]
+    pub method: MethodSpec,
+    /// Smallest clearance the `"qp"` update plans between the needle's centre line and an
+    /// obstacle's surface [mm].
+    #[serde(default = "default_clearance_margin")]
+    pub clearance_margin: f64,
+}
+
+/// How the inverse controller chooses the joint update.
+#[derive(Clone, Copy, Debug, Deserialize, Serialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum MethodSpec {
+    /// Damped least squares with bounds, trust region and obstacle clearances as rows.
+    Qp,
+    /// The paper's damped least squares, scaled and clamped after the fact.
+    Paper,
 }
 
 /// How the inverse controller's Jacobian columns are computed.
@@ -337,6 +357,8 @@ impl Default for InverseSpec {
             tolerance: default_inverse_tol(),
             jacobian: default_jacobian(),
             max_base_step: default_max_base_step(),
+            method: default_method(),
+            clearance_margin: default_clearance_margin(),
         }
     }
 }

@@ -271,3 +271,27 @@ fn start_joints_and_insertion_mode_are_checked_and_used() {
     let insertion = crate::setup::step_params(&insert).insertion;
     assert_eq!(insertion.target_arc(total, 500), total);
 }
+
+#[test]
+fn the_update_method_and_clearance_margin_reach_the_core_and_are_checked() {
+    use needle_core::inverse::StepMethod;
+    let s = Scene::builtin("complex").unwrap();
+    assert_eq!(s.inverse_params().method, StepMethod::Qp, "the default");
+    assert_eq!(s.inverse_params().clearance_margin, 0.2);
+    let o = s
+        .with_overrides(&[
+            ("inverse.method".into(), "\"paper\"".into()),
+            ("inverse.clearance_margin".into(), "0.5".into()),
+        ])
+        .expect("overrides");
+    assert_eq!(o.inverse_params().method, StepMethod::Paper);
+    assert_eq!(o.inverse_params().clearance_margin, 0.5);
+    let e = s
+        .with_overrides(&[("inverse.clearance_margin".into(), "-0.1".into())])
+        .unwrap_err();
+    assert_eq!(e.field, "inverse.clearance_margin");
+    let e = s
+        .with_overrides(&[("inverse.method".into(), "\"newton\"".into())])
+        .unwrap_err();
+    assert!(e.to_string().contains("inverse.method"), "{e}");
+}

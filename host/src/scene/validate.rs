@@ -317,7 +317,8 @@ impl Scene {
         non_negative("inverse.damping", v.damping, "[mm]")?;
         non_negative("inverse.angle_weight", v.angle_weight, "[mm/rad]")?;
         non_negative("inverse.tolerance", v.tolerance, "[mm²]")?;
-        positive("inverse.max_base_step", v.max_base_step, "[mm]")
+        positive("inverse.max_base_step", v.max_base_step, "[mm]")?;
+        non_negative("inverse.clearance_margin", v.clearance_margin, "[mm]")
     }
 
     fn validate_solver(&self) -> Check {

@@ -321,6 +321,8 @@ impl Pipeline {
             .map_err(SimError::in_compliance(Body::Gel))?;
         let observations = observe::observations(world, &self.free, c);
         self.set.fill_frame(&observations, &mut self.frame);
+        let clearances = observe::clearance_observations(world, &self.free);
+        self.set.fill_clearances(&clearances, &mut self.frame);
         observe::fill_header(
             &mut self.frame,
             world,

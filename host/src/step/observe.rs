@@ -5,12 +5,12 @@
 
 use super::{FreePositions, ROWS};
 use crate::compliance::PointMap;
-use crate::constraints::{Model, Observation};
+use crate::constraints::{ClearanceObservation, Model, Observation};
 use crate::step::rows::gel_map;
 use crate::world::World;
 use nalgebra::{Matrix3, Rotation3, Vector3};
 use needle_core::inverse::base_violation;
-use needle_core::payload::{ComplianceFrame, ValidationError};
+use needle_core::payload::{ComplianceFrame, NCLEAR, ValidationError};
 
 /// Arc length between the target and the second point that defines the target tangent [mm].
 const TANGENT_STEP: f64 = 1.0;
@@ -46,6 +46,73 @@ pub fn observations(world: &World, free: &FreePositions, c: f64) -> [Observation
         free.gel_point(world, &world.entry),
     );
     [tip, dir, target, tangent, entry]
+}
+
+/// The obstacles the controller sees: for each obstacle, the point of the inserted needle
+/// nearest to its centre at the start of the step (the needle within `depth` of the tip, as
+/// [`World::clearances`] measures) and the centre, observed after the free motion; the `NCLEAR`
+/// nearest obstacles when there are more. None before puncture (nothing is inserted).
+pub fn clearance_observations(world: &World, free: &FreePositions) -> Vec<ClearanceObservation> {
+    let depth = world.depth();
+    if !world.punctured || world.obstacles.is_empty() || depth <= 0.0 {
+        return Vec::new();
+    }
+    let nodes = world.needle.positions();
+    let n = nodes.len();
+    // Arc length from the tip to each node.
+    let mut arc = vec![0.0; n];
+    for k in (0..n - 1).rev() {
+        arc[k] = arc[k + 1] + (nodes[k + 1] - nodes[k]).norm();
+    }
+    let mut seen: Vec<(f64, ClearanceObservation)> = world
+        .obstacles
+        .iter()
+        .map(|(e, r)| {
+            let c = world.gel_point(e);
+            let mut best = (f64::INFINITY, n - 2, 1.0);
+            for k in (0..n - 1).filter(|&k| arc[k + 1] < depth) {
+                // The segment clipped to the inserted part, as a fraction range of [k, k + 1].
+                let f0 = if arc[k] > depth {
+                    (arc[k] - depth) / (arc[k] - arc[k + 1])
+                } else {
+                    0.0
+                };
+                let (a, b) = (nodes[k], nodes[k + 1]);
+                let ab = b - a;
+                let l2 = ab.norm_squared();
+                let f = if l2 > 0.0 {
+                    ((c - a).dot(&ab) / l2).clamp(f0, 1.0)
+                } else {
+                    1.0
+                };
+                let d = (a + f * ab - c).norm();
+                if d < best.0 {
+                    best = (d, k, f);
+                }
+            }
+            let (d, k, f) = best;
+            let at = |x: &[Vector3<f64>]| x[k] * (1.0 - f) + x[k + 1] * f;
+            let needle = Observation {
+                model: Model::Needle,
+                map: PointMap::weighted([(Some(6 * k), 1.0 - f), (Some(6 * (k + 1)), f)]),
+                a: Matrix3::identity(),
+                free: at(&free.needle),
+            };
+            let centre = gel_observation(gel_map(world, e), free.gel_point(world, e));
+            (
+                d - r,
+                ClearanceObservation {
+                    needle,
+                    centre,
+                    radius: *r,
+                    current: at(nodes) - c,
+                },
+            )
+        })
+        .collect();
+    seen.sort_by(|a, b| a.0.total_cmp(&b.0));
+    seen.truncate(NCLEAR);
+    seen.into_iter().map(|(_, c)| c).collect()
 }
 
 /// An observed gel point or direction.
