@@ -313,9 +313,17 @@ fn print_text(s: &RunSummary) {
         s.scene, s.controller, s.gel_nodes
     );
     println!(
-        "steps {}/{}{}",
+        "steps {}/{}{}{}",
         s.steps,
         s.steps_planned,
+        if s.steps > s.steps_planned {
+            format!(
+                " (+{} settling: the target held at the path's end)",
+                s.steps - s.steps_planned
+            )
+        } else {
+            String::new()
+        },
         match &s.stopped {
             Some(r) => format!(" — stopped: {r}"),
             None => String::new(),

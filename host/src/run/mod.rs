@@ -51,6 +51,44 @@ use std::time::Duration;
 use summary::{Ending, Statistics};
 use watch::Watchdog;
 
+/// The tip is settled at the path's end within this distance [mm] (half the reach tolerance).
+pub const SETTLED_MM: f64 = metrics::REACH_TOLERANCE_MM / 2.0;
+
+/// Steps a whole insertion under the inverse controller may add after its planned `n`: the
+/// target rests at the path's end, and while the tip is farther than [`SETTLED_MM`] from it the
+/// run goes on, up to the [`metrics::STEP_ALLOWANCE`] × nominal steps the outcome allows. None
+/// for a run of a given length (`--steps`), the naive replay or a back-and-forth insertion.
+/// When the settling steps end: the tip within [`SETTLED_MM`] of the path's end, or no longer
+/// getting closer (less than 5 % closer over the last [`Settling::WINDOW`] steps: the tip is
+/// stuck, and more steps would only add to the error).
+#[derive(Debug, Default)]
+struct Settling {
+    /// Distances to the end over the settling steps so far [mm].
+    history: Vec<f64>,
+}
+
+impl Settling {
+    const WINDOW: usize = 20;
+
+    fn done(&mut self, distance: f64) -> bool {
+        self.history.push(distance);
+        let h = &self.history;
+        distance <= SETTLED_MM
+            || (h.len() > Self::WINDOW && distance > 0.95 * h[h.len() - 1 - Self::WINDOW])
+    }
+}
+
+fn settling_steps(opts: &RunOptions, params: &crate::step::StepParams, n: usize) -> usize {
+    let whole = opts.steps.is_none()
+        && opts.controller == ControllerKind::Inverse
+        && params.insertion.motion == crate::step::TargetMotion::Insert;
+    if whole {
+        (metrics::STEP_ALLOWANCE * n as f64).floor() as usize - n
+    } else {
+        0
+    }
+}
+
 /// Which controller drives the robot.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "lowercase")]
@@ -267,6 +305,7 @@ pub fn run_setup(
         ControllerKind::Naive => naive_replay(&world, &params, robot, inverse, steps),
     };
     let n = open_loop.as_ref().map_or(steps, |o| o.joints.len());
+    let settle = settling_steps(opts, &params, n);
     let core: &mut dyn Transport<ROWS> = match open_loop.as_mut() {
         Some(o) => o,
         None => transport,
@@ -284,7 +323,11 @@ pub fn run_setup(
     // the run's own bookkeeping (checks, statistics, files, the observer).
     let cpu_start = crate::cpu::process_s();
     let mut bookkeeping = 0.0;
-    for k in 0..n {
+    let mut settling = Settling::default();
+    for k in 0..n + settle {
+        if k >= n && settling.done(books.stats.distance_to_end()) {
+            break;
+        }
         remote.pace(world.c);
         let r = match pipeline.step(&mut world, &params, &mut remote) {
             Ok(r) => r,
@@ -340,4 +383,43 @@ pub fn run_setup(
         reports,
         error_by_depth,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn settling_ends_at_the_target_or_when_the_tip_is_stuck() {
+        let mut s = Settling::default();
+        assert!(!s.done(3.0));
+        assert!(s.done(0.4), "within 0.5 mm: settled");
+        // Getting closer by more than 5 % per 20 steps: goes on.
+        let mut s = Settling::default();
+        assert!((0..60).all(|k| !s.done(3.0 * 0.99_f64.powi(k))));
+        // Stuck: ends once 20 steps brought less than 5 %.
+        let mut s = Settling::default();
+        let ends: Vec<bool> = (0..25).map(|_| s.done(3.0)).collect();
+        assert_eq!(ends.iter().position(|d| *d), Some(Settling::WINDOW));
+    }
+
+    #[test]
+    fn only_a_whole_insertion_of_the_inverse_controller_settles() {
+        let params = crate::step::StepParams::default();
+        let whole = RunOptions::default();
+        assert_eq!(settling_steps(&whole, &params, 600), 120);
+        let given = RunOptions {
+            steps: Some(600),
+            ..RunOptions::default()
+        };
+        assert_eq!(settling_steps(&given, &params, 600), 0);
+        let naive = RunOptions {
+            controller: ControllerKind::Naive,
+            ..RunOptions::default()
+        };
+        assert_eq!(settling_steps(&naive, &params, 600), 0);
+        let mut there_and_back = params;
+        there_and_back.insertion.motion = crate::step::TargetMotion::BackAndForth;
+        assert_eq!(settling_steps(&whole, &there_and_back, 600), 0);
+    }
 }

@@ -78,11 +78,12 @@ pub struct RunSummary {
     pub gel_nodes: usize,
     /// The build, machine and date that made this run.
     pub provenance: crate::provenance::Provenance,
-    /// Steps run.
+    /// Steps run (a whole insertion may add settling steps after the planned ones: the target
+    /// held at the path's end until the tip is within 0.5 mm of it, up to 1.2 × planned).
     pub steps: usize,
     /// Steps planned.
     pub steps_planned: usize,
-    /// Whether the run reached its last step.
+    /// Whether the run reached its last planned step.
     pub completed: bool,
     /// Why it stopped early: `step k: ` and the reason.
     pub stopped: Option<String>,
@@ -175,6 +176,12 @@ impl Statistics {
             path: PathMetrics::default(),
             sampled: None,
         }
+    }
+
+    /// Distance from the tip to the path's end point after the last step [mm] (∞ before the
+    /// first).
+    pub fn distance_to_end(&self) -> f64 {
+        self.path.e_end
     }
 
     /// The strain sample of the last step (none when it was not sampled).
@@ -277,7 +284,7 @@ impl Statistics {
             provenance: crate::provenance::Provenance::now(),
             steps: reports.len(),
             steps_planned: end.steps_planned,
-            completed: reports.len() == end.steps_planned && end.stopped.is_none(),
+            completed: reports.len() >= end.steps_planned && end.stopped.is_none(),
             stopped: end
                 .stopped
                 .as_ref()
