@@ -98,6 +98,12 @@ pub struct InverseParams {
     /// Smallest clearance the [`StepMethod::Qp`] update plans between the needle's centre line
     /// and an obstacle's surface [mm] (default 0.2).
     pub clearance_margin: f64,
+    /// Weight of the two angles in the second stage of the [`StepMethod::Qp`] update [mm/rad]
+    /// (default 10): that update moves the tip first and corrects the angles only within the
+    /// joint motion that leaves the tip's predicted position unchanged, where the angles are
+    /// weighed against the damping ε (not against the tip error, as `angle_weight` is in the
+    /// paper's update).
+    pub qp_angle_weight: f64,
 }
 
 // SAFETY: `#[repr(u8)]` and the variant `Solve` has the discriminant 0.
@@ -123,6 +129,7 @@ crate::zeroed::impl_zeroable!(InverseParams {
     jacobian_tolerance,
     method,
     clearance_margin,
+    qp_angle_weight,
 });
 
 impl Default for InverseParams {
@@ -152,6 +159,7 @@ impl Default for InverseParams {
             jacobian_tolerance: 1e-5,
             method: StepMethod::Qp,
             clearance_margin: 0.2,
+            qp_angle_weight: 10.0,
         }
     }
 }
@@ -186,6 +194,7 @@ impl InverseParams {
             (nonneg(self.jacobian_tolerance), "jacobian_tolerance"),
             (self.max_base_step > 0.0, "max_base_step"),
             (nonneg(self.clearance_margin), "clearance_margin"),
+            (nonneg(self.qp_angle_weight), "qp_angle_weight"),
         ];
         for (ok, name) in checks {
             if !ok {

@@ -68,6 +68,7 @@ impl Scene {
                 super::MethodSpec::Paper => StepMethod::Paper,
             },
             clearance_margin: v.clearance_margin,
+            qp_angle_weight: v.qp_angle_weight,
             jacobian: match v.jacobian {
                 super::JacobianSpec::Solve => JacobianMode::Solve,
                 super::JacobianSpec::Linearized => JacobianMode::Linearized,

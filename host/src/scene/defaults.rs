@@ -88,6 +88,9 @@ pub(super) fn default_method() -> MethodSpec {
 pub(super) fn default_clearance_margin() -> f64 {
     InverseParams::default().clearance_margin
 }
+pub(super) fn default_qp_angle_weight() -> f64 {
+    InverseParams::default().qp_angle_weight
+}
 pub(super) fn default_jacobian() -> JacobianSpec {
     JacobianSpec::Hybrid
 }

@@ -323,6 +323,9 @@ pub struct InverseSpec {
     /// obstacle's surface [mm].
     #[serde(default = "default_clearance_margin")]
     pub clearance_margin: f64,
+    /// Weight of the angles in the `"qp"` update's second stage, against the damping [mm/rad].
+    #[serde(default = "default_qp_angle_weight")]
+    pub qp_angle_weight: f64,
 }
 
 /// How the inverse controller chooses the joint update.
@@ -359,6 +362,7 @@ impl Default for InverseSpec {
             max_base_step: default_max_base_step(),
             method: default_method(),
             clearance_margin: default_clearance_margin(),
+            qp_angle_weight: default_qp_angle_weight(),
         }
     }
 }

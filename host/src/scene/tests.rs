@@ -273,19 +273,26 @@ fn start_joints_and_insertion_mode_are_checked_and_used() {
 }
 
 #[test]
-fn the_update_method_and_clearance_margin_reach_the_core_and_are_checked() {
+fn the_update_method_clearance_margin_and_qp_angle_weight_reach_the_core_and_are_checked() {
     use needle_core::inverse::StepMethod;
     let s = Scene::builtin("complex").unwrap();
     assert_eq!(s.inverse_params().method, StepMethod::Qp, "the default");
     assert_eq!(s.inverse_params().clearance_margin, 0.2);
+    assert_eq!(s.inverse_params().qp_angle_weight, 10.0);
     let o = s
         .with_overrides(&[
             ("inverse.method".into(), "\"paper\"".into()),
             ("inverse.clearance_margin".into(), "0.5".into()),
+            ("inverse.qp_angle_weight".into(), "3".into()),
         ])
         .expect("overrides");
     assert_eq!(o.inverse_params().method, StepMethod::Paper);
     assert_eq!(o.inverse_params().clearance_margin, 0.5);
+    assert_eq!(o.inverse_params().qp_angle_weight, 3.0);
+    let e = s
+        .with_overrides(&[("inverse.qp_angle_weight".into(), "-1".into())])
+        .unwrap_err();
+    assert_eq!(e.field, "inverse.qp_angle_weight");
     let e = s
         .with_overrides(&[("inverse.clearance_margin".into(), "-0.1".into())])
         .unwrap_err();

@@ -318,7 +318,8 @@ impl Scene {
         non_negative("inverse.angle_weight", v.angle_weight, "[mm/rad]")?;
         non_negative("inverse.tolerance", v.tolerance, "[mm²]")?;
         positive("inverse.max_base_step", v.max_base_step, "[mm]")?;
-        non_negative("inverse.clearance_margin", v.clearance_margin, "[mm]")
+        non_negative("inverse.clearance_margin", v.clearance_margin, "[mm]")?;
+        non_negative("inverse.qp_angle_weight", v.qp_angle_weight, "[mm/rad]")
     }
 
     fn validate_solver(&self) -> Check {
