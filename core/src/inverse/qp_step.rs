@@ -142,33 +142,16 @@ impl<const M: usize, const N: usize> Controller<M, N> {
         let eps2 = self.damping_squared(jac, report);
         let mut qp = Qp::<N, QP_ROWS>::new();
         let mut ranges = RowRanges::default();
+        let solve = |qp: &mut Qp<N, QP_ROWS>, relaxed, stage: &Stage<N>, ranges: &mut RowRanges| {
+            self.solve_program(qp, frame, jac, clear, obj0, eps2, relaxed, stage, ranges)
+        };
         // Stage 1: the tip's position.
         let first = Stage::identity();
         let mut relaxed = false;
-        let mut solved = self.solve_program(
-            &mut qp,
-            frame,
-            jac,
-            clear,
-            obj0,
-            eps2,
-            relaxed,
-            &first,
-            &mut ranges,
-        );
+        let mut solved = solve(&mut qp, relaxed, &first, &mut ranges);
         if matches!(solved, Err(QpError::Infeasible { .. })) {
             relaxed = true;
-            solved = self.solve_program(
-                &mut qp,
-                frame,
-                jac,
-                clear,
-                obj0,
-                eps2,
-                relaxed,
-                &first,
-                &mut ranges,
-            );
+            solved = solve(&mut qp, relaxed, &first, &mut ranges);
         }
         let dq1 = first.dq(&qp);
         if solved.is_err() || !dq1.iter().all(|x| x.is_finite()) {
@@ -180,20 +163,7 @@ impl<const M: usize, const N: usize> Controller<M, N> {
         // first stage's step stands.
         let mut dq = dq1;
         if let Some(second) = Stage::null_space(jac, dq1, eps2) {
-            if self
-                .solve_program(
-                    &mut qp,
-                    frame,
-                    jac,
-                    clear,
-                    obj0,
-                    eps2,
-                    relaxed,
-                    &second,
-                    &mut ranges,
-                )
-                .is_ok()
-            {
+            if solve(&mut qp, relaxed, &second, &mut ranges).is_ok() {
                 let dq2 = second.dq(&qp);
                 if dq2.iter().all(|x| x.is_finite()) {
                     dq = dq2;
