@@ -111,6 +111,46 @@ fn run_with_out_writes_a_replay_with_its_first_and_last_frames() {
 }
 
 #[test]
+fn vtk_frames_include_the_last_step_and_a_pvd_with_their_times() {
+    // 47 steps every 20: frames 0, 20, 40 and the last, 47 (step 600 of 609 was the last
+    // frame written before).
+    let dir = tmp("vtk");
+    let o = short_run(&["--steps", "47", "--vtk-every", "20"])
+        .arg("--out")
+        .arg(&dir)
+        .output()
+        .expect("run");
+    assert!(!matches!(o.status.code(), Some(1 | 2)), "{}", stderr(&o));
+    let parts = ["gel", "needle", "path", "obstacles", "constraints"];
+    for k in [0, 20, 40, 47] {
+        for part in parts {
+            let f = dir.join(format!("{part}_{k:05}.vtu"));
+            let text = std::fs::read_to_string(&f).expect("frame file");
+            assert!(
+                text.contains("compressor=\"vtkZLibDataCompressor\""),
+                "{f:?}"
+            );
+        }
+    }
+    assert!(!dir.join("gel_00060.vtu").exists());
+    let gel = std::fs::read_to_string(dir.join("gel.pvd")).expect("gel.pvd");
+    // dt = 0.04 s in the simple scene: frame 47 at 1.88 s.
+    let times: Vec<f64> = gel
+        .split("timestep=\"")
+        .skip(1)
+        .map(|t| t.split('"').next().unwrap().parse().unwrap())
+        .collect();
+    assert_eq!(times.len(), 4, "{gel}");
+    assert!(
+        (times[3] - 47.0 * times[1] / 20.0).abs() < 1e-12,
+        "{times:?}"
+    );
+    let run = std::fs::read_to_string(dir.join("run.pvd")).expect("run.pvd");
+    assert_eq!(run.matches("<DataSet ").count(), 4 * parts.len());
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+#[test]
 fn suite_runs_every_scene_of_a_folder_and_records_one_that_cannot_run() {
     let dir = tmp("suite");
     let scenes = dir.join("scenes");

@@ -193,6 +193,41 @@ fn inverted_element_pushes_back_and_stays_finite() {
     );
 }
 
+#[test]
+fn element_state_gives_the_strain_and_von_mises_stress_of_a_rotated_uniaxial_strain() {
+    // x ↦ R (I + e·x̂x̂ᵀ) x: a uniaxial strain e, then a rigid 70° rotation. Corotational strain
+    // diag(e, 0, 0); σ = diag(λ + 2μ, λ, λ)·e, whose von Mises stress is |σxx − σyy| = 2μ e.
+    let mesh = one_tet();
+    let tetra = CorotationalTetra::try_new(&mesh, &GEL, Kinematics::Corotational).unwrap();
+    let e = 0.03;
+    let r = Rotation3::from_axis_angle(
+        &nalgebra::Unit::new_normalize(Vector3::new(1.0, 2.0, -0.5)),
+        70f64.to_radians(),
+    );
+    let stretch = Matrix3::from_diagonal(&Vector3::new(1.0 + e, 1.0, 1.0));
+    let x: Vec<_> = mesh.nodes.iter().map(|p| r * (stretch * p)).collect();
+    let s = tetra.element_state(0, &x);
+    let expected = Matrix3::from_diagonal(&Vector3::new(e, 0.0, 0.0));
+    assert!((s.strain - expected).norm() < 1e-12, "{}", s.strain);
+    let mu = GEL.shear_modulus();
+    assert!(
+        (s.von_mises - 2.0 * mu * e).abs() < 1e-12 * mu,
+        "{} vs {}",
+        s.von_mises,
+        2.0 * mu * e
+    );
+    assert!(!s.inverted);
+    // Small strain, no rotation: the linear model gives the same state.
+    let lin = CorotationalTetra::try_new(&mesh, &GEL, Kinematics::Linear).unwrap();
+    let x: Vec<_> = mesh.nodes.iter().map(|p| stretch * p).collect();
+    assert!((lin.element_state(0, &x).strain - expected).norm() < 1e-12);
+    // At rest: zero; pushed through its face: inverted.
+    assert!(tetra.element_state(0, &mesh.nodes).von_mises < 1e-12 * mu);
+    let mut x = mesh.nodes.clone();
+    x[3].z = -3.0;
+    assert!(tetra.element_state(0, &x).inverted);
+}
+
 fn gravity_like_load(model: &GelModel, fz: f64) -> Vec<f64> {
     let mut f = vec![0.0; model.dof_count()];
     for i in 0..model.positions().len() {

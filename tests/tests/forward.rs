@@ -285,7 +285,42 @@ fn lateral_push_bends_needle_and_gel_with_equal_and_opposite_forces() {
         imbalance < 0.02 * base.norm(),
         "base {base} + sliding {sliding} = {imbalance} N"
     );
-    let _ = reports;
+    // The step's report carries the same forces, where they act, and their nodal sum (what the
+    // VTK frames write).
+    let last = reports.last().expect("a report");
+    let roles: Vec<_> = forces.iter().map(|(r, _)| *r).collect();
+    assert_eq!(
+        last.forces.iter().map(|f| f.role).collect::<Vec<_>>(),
+        roles
+    );
+    for (f, (_, g)) in last.forces.iter().zip(&forces) {
+        assert!((f.force - g).norm() < 1e-12, "{} vs {g}", f.force);
+    }
+    let p = sim.needle.positions();
+    assert!(
+        (last.forces[0].at - p[0]).norm() < 1e-12,
+        "the base acts at node 0"
+    );
+    for f in &last.forces {
+        if let GroupRole::Sliding(id) = f.role {
+            let gel_point = sim.sliding.iter().find(|s| s.id == id).expect("its point");
+            let x = gel_point
+                .at
+                .position(sim.gel.positions(), &sim.gel.mesh().tets);
+            assert!(
+                (f.at - x).norm() < 0.05,
+                "sliding point {id}: needle {} vs gel {x}",
+                f.at
+            );
+        }
+    }
+    let nodal: Vector3<f64> = last.needle_node_forces.iter().sum();
+    let total: Vector3<f64> = last.forces.iter().map(|f| f.force).sum();
+    assert_eq!(last.needle_node_forces.len(), p.len());
+    assert!(
+        (nodal - total).norm() < 1e-12,
+        "nodal {nodal} vs groups {total}"
+    );
 }
 
 #[test]

@@ -135,7 +135,8 @@ struct RunArgs {
     /// Controller driving the robot.
     #[arg(long, value_enum, default_value_t = Ctl::Inverse)]
     controller: Ctl,
-    /// Write VTK files every N steps (needs --out; default: the scene's `output.vtk_every`).
+    /// Write ParaView files (.vtu frames, .pvd collections) every N steps and at the end
+    /// (needs --out; default: the scene's `output.vtk_every`).
     #[arg(long)]
     vtk_every: Option<usize>,
     #[command(flatten)]

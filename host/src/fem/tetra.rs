@@ -180,6 +180,17 @@ pub struct StrainStats {
     pub inverted: usize,
 }
 
+/// See [`CorotationalTetra::element_state`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ElementState {
+    /// Corotational small strain `sym(Rᵀ F − I)` [-].
+    pub strain: Matrix3<f64>,
+    /// Von Mises equivalent stress [MPa].
+    pub von_mises: f64,
+    /// `det F ≤ 0`.
+    pub inverted: bool,
+}
+
 /// Rest data of the gel's corotational tetrahedra.
 ///
 /// `K0_e = V Bᵀ D B` is kept in factored form — the rest volume `V` and the four
@@ -351,6 +362,24 @@ impl CorotationalTetra {
         out
     }
 
+    /// State of element `e` at positions `x` [mm]: the corotational strain
+    /// `ε = sym(Rᵀ F − I)` (`R` the polar rotation of `F`; `I` for [`Kinematics::Linear`]), the
+    /// von Mises stress of `σ = λ tr(ε) I + 2μ ε` [MPa], and whether `det F ≤ 0`.
+    pub fn element_state(&self, e: usize, x: &[Vector3<f64>]) -> ElementState {
+        let f = self.deformation_gradient(e, x);
+        let r = match self.kinematics {
+            Kinematics::Corotational => rotation_from_deformation(&f),
+            Kinematics::Linear => Matrix3::identity(),
+        };
+        let (strain, stress) = self.strain_stress(&r, &f);
+        let dev = stress - Matrix3::identity() * (stress.trace() / 3.0);
+        ElementState {
+            strain,
+            von_mises: (1.5 * dev.norm_squared()).sqrt(),
+            inverted: !(f.determinant() > 0.0),
+        }
+    }
+
     /// Updates every element rotation from the positions `x` [mm] (no-op for [`Kinematics::Linear`]).
     pub fn update_rotations(&mut self, x: &[Vector3<f64>]) {
         if self.kinematics == Kinematics::Linear {
@@ -367,12 +396,18 @@ impl CorotationalTetra {
     pub fn element_internal_force(&self, e: usize, x: &[Vector3<f64>]) -> [Vector3<f64>; 4] {
         let r = &self.rotations[e];
         let f = self.deformation_gradient(e, x);
-        // Corotated displacement gradient and linear stress.
-        let h = r.tr_mul(&f) - Matrix3::identity();
-        let eps = (h + h.transpose()) * 0.5;
-        let sigma = eps * (2.0 * self.mu) + Matrix3::identity() * (self.lambda * eps.trace());
+        let (_, sigma) = self.strain_stress(r, &f);
         let p = (r * sigma) * self.volumes[e];
         self.grads[e].map(|g| p * g)
+    }
+
+    /// The corotated strain `ε = sym(Rᵀ F − I)` and the linear stress `σ = λ tr(ε) I + 2μ ε` [MPa].
+    #[inline(always)]
+    fn strain_stress(&self, r: &Matrix3<f64>, f: &Matrix3<f64>) -> (Matrix3<f64>, Matrix3<f64>) {
+        let h = r.tr_mul(f) - Matrix3::identity();
+        let eps = (h + h.transpose()) * 0.5;
+        let sigma = eps * (2.0 * self.mu) + Matrix3::identity() * (self.lambda * eps.trace());
+        (eps, sigma)
     }
 
     /// Adds the internal forces of all elements at positions `x` to `f` (3 dofs per node) [N].

@@ -26,6 +26,7 @@ pub mod outputs;
 pub mod remote;
 pub mod replay_out;
 pub mod summary;
+pub mod vtk_frames;
 pub mod watch;
 
 pub use crate::setup::planned_steps;
@@ -42,13 +43,14 @@ use crate::step::{Pipeline, ROWS, StepReport};
 use crate::world::World;
 use needle_bridge::{InProcess, Transport};
 use needle_core::payload::JOINTS;
-use outputs::{MetricsCsv, SummaryJson, VtkFrames};
+use outputs::{MetricsCsv, SummaryJson};
 use remote::Remote;
 use replay_out::ReplayRecorder;
 use serde::Serialize;
 use std::path::PathBuf;
 use std::time::Duration;
 use summary::{Ending, Statistics};
+use vtk_frames::VtkFrames;
 use watch::Watchdog;
 
 /// The tip is settled at the path's end within this distance [mm] (half the reach tolerance).
@@ -163,11 +165,11 @@ pub trait Observer {
     /// An output that cannot be written (the run stops with it).
     fn step(&mut self, world: &World, report: &StepReport) -> Result<(), OutputError>;
 
-    /// At the end of the run.
+    /// At the end of the run, with the final state of the world.
     ///
     /// # Errors
     /// An output that cannot be written.
-    fn finish(&mut self, _summary: &RunSummary) -> Result<(), OutputError> {
+    fn finish(&mut self, _world: &World, _summary: &RunSummary) -> Result<(), OutputError> {
         Ok(())
     }
 }
@@ -229,7 +231,7 @@ fn outputs(
     std::fs::create_dir_all(dir).map_err(|e| OutputError::new(dir, e))?;
     let mut out: Vec<Box<dyn Observer>> = vec![Box::new(MetricsCsv::create(dir, world)?)];
     if vtk_every > 0 {
-        out.push(Box::new(VtkFrames::start(dir, vtk_every, world)?));
+        out.push(Box::new(VtkFrames::start(dir, vtk_every, dt, world)?));
     }
     out.push(Box::new(SummaryJson(dir.clone())));
     out.push(Box::new(ReplayRecorder::start(dir, plan, dt, world)?));
@@ -362,7 +364,7 @@ pub fn run_setup(
         },
     );
     for f in &mut books.files {
-        f.finish(&summary)?;
+        f.finish(&world, &summary)?;
     }
     tracing::info!(
         "run of `{}` ended after {} of {} steps: {} (e_mean {:.3} mm, e_final {:.3} mm)",

@@ -120,7 +120,7 @@ impl Observer for ReplayRecorder {
         Ok(())
     }
 
-    fn finish(&mut self, s: &RunSummary) -> Result<(), OutputError> {
+    fn finish(&mut self, _: &World, s: &RunSummary) -> Result<(), OutputError> {
         if let Some(last) = self.pending.take() {
             self.data.frames.push(last);
         }

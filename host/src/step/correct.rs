@@ -83,3 +83,55 @@ pub fn needle_forces(set: &ConstraintSet, lambda: &[f64]) -> Vec<(GroupRole, Vec
         })
         .collect()
 }
+
+/// The force one row group applies to the needle, and where.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ConstraintForce {
+    /// What the group models.
+    pub role: GroupRole,
+    /// The group's point on the needle, world frame [mm].
+    pub at: Vector3<f64>,
+    /// The force on the needle (the gel receives its opposite), world frame [N]; for the base,
+    /// its translational rows.
+    pub force: Vector3<f64>,
+}
+
+/// Every group's [`ConstraintForce`] at needle positions `x`, and the nodal forces `Pᵀ f` the
+/// constraints apply to the needle's nodes (translational dofs; the base's moment left out) [N].
+pub fn constraint_forces(
+    set: &ConstraintSet,
+    lambda: &[f64],
+    x: &[Vector3<f64>],
+) -> (Vec<ConstraintForce>, Vec<Vector3<f64>>) {
+    let mut nodal = vec![Vector3::zeros(); x.len()];
+    let mut groups = Vec::with_capacity(set.groups.len());
+    for (g, start) in set.groups.iter().zip(set.starts()) {
+        let mut first = None;
+        for b in g.attachments.iter().filter(|b| b.model == Model::Needle) {
+            let l = attachment_lambda(lambda, start, b.row_offset, b.rows.min(3));
+            let f = b.sign * b.d.transpose() * l;
+            let map = &set.needle.points[b.point].map;
+            let mut at = Vector3::zeros();
+            let mut translational = false;
+            for &(block, w) in &map.blocks[..map.len] {
+                let node = block / 6;
+                if block % 6 == 0 && node < x.len() {
+                    nodal[node] += w * f;
+                    at += w * x[node];
+                    translational = true;
+                }
+            }
+            if translational && first.is_none() {
+                first = Some((at, f));
+            }
+        }
+        if let Some((at, force)) = first {
+            groups.push(ConstraintForce {
+                role: g.role,
+                at,
+                force,
+            });
+        }
+    }
+    (groups, nodal)
+}

@@ -32,6 +32,7 @@ pub mod observe;
 mod params;
 pub mod rows;
 
+pub use correct::ConstraintForce;
 pub use params::{Insertion, Interaction, StepParams, TargetMotion};
 
 use crate::compliance::PointColumns;
@@ -112,6 +113,10 @@ pub struct StepReport {
     pub q: [f64; JOINTS],
     /// Stage times [ms].
     pub times: StageTimes,
+    /// The force of each row group on the needle, and where it acts (after the step).
+    pub forces: Vec<ConstraintForce>,
+    /// The constraints' forces on each needle node (translational) [N].
+    pub needle_node_forces: Vec<Vector3<f64>>,
 }
 
 /// Positions after free motion: `x + Δx_free` of every node [mm].
@@ -343,6 +348,11 @@ impl Pipeline {
     ) -> StepReport {
         let tip = world.tip();
         let target = world.target(c);
+        let (group_forces, needle_node_forces) = correct::constraint_forces(
+            &self.set,
+            &self.command.lambda[..self.set.rows()],
+            world.needle.positions(),
+        );
         StepReport {
             step: world.steps,
             c,
@@ -360,6 +370,8 @@ impl Pipeline {
             residual: world.sliding_residual(),
             q: world.q,
             times: self.times,
+            forces: group_forces,
+            needle_node_forces,
         }
     }
 

@@ -1,10 +1,6 @@
-//! Outputs of a run: VTK files that ParaView opens, and the per-step metrics CSV.
-//!
-//! VTK (legacy, ASCII, through `vtkio`): one file per object and frame —
-//! `gel_NNNNN.vtk` (tetrahedra with the displacement field), `needle_NNNNN.vtk` (polyline),
-//! `path_NNNNN.vtk` (the embedded path, deformed), `obstacles_NNNNN.vtk` (centres with a `radius`
-//! scalar: glyph them with spheres), `constraints_NNNNN.vtk` (sliding/contact points with a
-//! `kind` scalar). The CSV holds one row per step (see [`StepMetrics`]).
+//! Outputs of a run: VTK XML files that ParaView opens ([`vtu`]: compressed `.vtu` grids and
+//! `.pvd` time collections; what each frame holds is written by `run::outputs`), and the
+//! per-step metrics CSV (one row per step, see [`StepMetrics`]).
 
 // Units are written in brackets ([mm], [N]) as in the workspace style: not intra-doc links.
 #![allow(rustdoc::broken_intra_doc_links)]
@@ -12,10 +8,8 @@
 use nalgebra::Vector3;
 use std::fs::File;
 use std::path::{Path, PathBuf};
-use vtkio::model::{
-    Attribute, Attributes, ByteOrder, CellType, Cells, DataSet, UnstructuredGridPiece, Version,
-    VertexNumbers, Vtk,
-};
+
+pub mod vtu;
 
 /// An output error: which file, and why (its source).
 #[derive(Debug, thiserror::Error)]
@@ -38,9 +32,9 @@ pub enum OutputFailure {
     /// The CSV writer failed.
     #[error(transparent)]
     Csv(#[from] csv::Error),
-    /// The VTK writer failed.
-    #[error(transparent)]
-    Vtk(#[from] vtkio::Error),
+    /// A VTK grid could not be built (says why).
+    #[error("vtk: {0}")]
+    Vtk(String),
     /// The summary could not be serialised.
     #[error(transparent)]
     Json(#[from] serde_json::Error),
@@ -60,125 +54,6 @@ impl OutputError {
             source: source.into(),
         }
     }
-}
-
-fn flat(points: &[Vector3<f64>]) -> Vec<f64> {
-    points.iter().flat_map(|p| [p.x, p.y, p.z]).collect()
-}
-
-/// A point-data array written with a VTK file.
-pub enum PointData<'a> {
-    /// One scalar per point.
-    Scalars(&'a str, &'a [f64]),
-    /// One 3-vector per point.
-    Vectors(&'a str, &'a [Vector3<f64>]),
-}
-
-/// Writes an unstructured grid: `points`, cells of one `kind` (each a list of point indices), point data.
-///
-/// # Errors
-/// [`OutputError`] naming the file when it cannot be written.
-pub fn write_vtk(
-    path: &Path,
-    title: &str,
-    points: &[Vector3<f64>],
-    kind: CellType,
-    cells: &[&[usize]],
-    data: &[PointData<'_>],
-) -> Result<(), OutputError> {
-    let mut vertices = Vec::with_capacity(cells.iter().map(|c| c.len() + 1).sum());
-    for c in cells {
-        vertices.push(c.len() as u32);
-        vertices.extend(c.iter().map(|&i| i as u32));
-    }
-    let point = data
-        .iter()
-        .map(|d| match d {
-            PointData::Scalars(name, v) => Attribute::scalars(*name, 1).with_data(v.to_vec()),
-            PointData::Vectors(name, v) => Attribute::vectors(*name).with_data(flat(v)),
-        })
-        .collect();
-    let vtk = Vtk {
-        version: Version::new((4, 2)),
-        title: title.to_owned(),
-        byte_order: ByteOrder::BigEndian,
-        file_path: None,
-        data: DataSet::inline(UnstructuredGridPiece {
-            points: flat(points).into(),
-            cells: Cells {
-                cell_verts: VertexNumbers::Legacy {
-                    num_cells: cells.len() as u32,
-                    vertices,
-                },
-                types: vec![kind; cells.len()],
-            },
-            data: Attributes {
-                point,
-                cell: Vec::new(),
-            },
-        }),
-    };
-    vtk.export_ascii(path)
-        .map_err(|e| OutputError::new(path, e))
-}
-
-/// Writes a tetrahedral mesh with its displacement from `rest`.
-///
-/// # Errors
-/// [`OutputError`] naming the file.
-pub fn write_tet_mesh(
-    path: &Path,
-    nodes: &[Vector3<f64>],
-    rest: &[Vector3<f64>],
-    tets: &[[usize; 4]],
-) -> Result<(), OutputError> {
-    let cells: Vec<&[usize]> = tets.iter().map(|t| &t[..]).collect();
-    let disp: Vec<Vector3<f64>> = nodes.iter().zip(rest).map(|(x, x0)| x - x0).collect();
-    write_vtk(
-        path,
-        "gel",
-        nodes,
-        CellType::Tetra,
-        &cells,
-        &[PointData::Vectors("displacement", &disp)],
-    )
-}
-
-/// Writes a polyline through `points` (the needle, the path).
-///
-/// # Errors
-/// [`OutputError`] naming the file.
-pub fn write_polyline(
-    path: &Path,
-    title: &str,
-    points: &[Vector3<f64>],
-) -> Result<(), OutputError> {
-    let idx: Vec<usize> = (0..points.len()).collect();
-    write_vtk(path, title, points, CellType::PolyLine, &[&idx], &[])
-}
-
-/// Writes isolated points with one scalar each (obstacle centres with their radius, constraint
-/// points with their kind).
-///
-/// # Errors
-/// [`OutputError`] naming the file.
-pub fn write_points(
-    path: &Path,
-    title: &str,
-    points: &[Vector3<f64>],
-    name: &str,
-    values: &[f64],
-) -> Result<(), OutputError> {
-    let idx: Vec<[usize; 1]> = (0..points.len()).map(|i| [i]).collect();
-    let cells: Vec<&[usize]> = idx.iter().map(|c| &c[..]).collect();
-    write_vtk(
-        path,
-        title,
-        points,
-        CellType::Vertex,
-        &cells,
-        &[PointData::Scalars(name, values)],
-    )
 }
 
 /// One row of the per-step metrics CSV.
@@ -310,39 +185,6 @@ mod tests {
     }
 
     #[test]
-    fn vtk_files_read_back_with_their_cells_and_data() {
-        let nodes = vec![Vector3::zeros(), Vector3::x(), Vector3::y(), Vector3::z()];
-        let moved: Vec<_> = nodes
-            .iter()
-            .map(|p| p + Vector3::new(0.5, 0.0, 0.0))
-            .collect();
-        let path = tmp("gel.vtk");
-        write_tet_mesh(&path, &moved, &nodes, &[[0, 1, 2, 3]]).unwrap();
-        let back = Vtk::import(&path).expect("vtkio reads what it wrote");
-        let DataSet::UnstructuredGrid { pieces, .. } = back.data else {
-            panic!("not a grid")
-        };
-        let vtkio::model::Piece::Inline(piece) = &pieces[0] else {
-            panic!("not inline")
-        };
-        assert_eq!(piece.num_points(), 4);
-        assert_eq!(piece.cells.types, vec![CellType::Tetra]);
-        let text = std::fs::read_to_string(&path).unwrap();
-        assert!(text.contains("displacement"), "{text}");
-
-        let line = tmp("needle.vtk");
-        write_polyline(&line, "needle", &nodes).unwrap();
-        assert!(
-            std::fs::read_to_string(&line)
-                .unwrap()
-                .contains("CELL_TYPES 1")
-        );
-        let pts = tmp("obstacles.vtk");
-        write_points(&pts, "obstacles", &nodes[..2], "radius", &[2.0, 3.0]).unwrap();
-        assert!(std::fs::read_to_string(&pts).unwrap().contains("radius"));
-    }
-
-    #[test]
     fn csv_has_one_column_per_header_field() {
         let path = tmp("metrics.csv");
         let mut w = MetricsWriter::create(&path, 3).unwrap();
@@ -362,13 +204,13 @@ mod tests {
 
     #[test]
     fn unwritable_file_names_the_path() {
-        let e = write_polyline(
-            Path::new("/nonexistent-dir/x.vtk"),
-            "x",
-            &[Vector3::zeros()],
-        )
-        .unwrap_err();
-        assert!(e.to_string().contains("/nonexistent-dir/x.vtk"), "{e}");
-        assert!(matches!(e.source, OutputFailure::Vtk(_)), "{e:?}");
+        let grid = vtu::Grid {
+            points: vec![Vector3::zeros()],
+            cells: vec![(vtu::CellKind::Vertex, vec![0])],
+            ..vtu::Grid::default()
+        };
+        let e = grid.write(Path::new("/nonexistent-dir/x.vtu")).unwrap_err();
+        assert!(e.to_string().contains("/nonexistent-dir/x.vtu"), "{e}");
+        assert!(matches!(e.source, OutputFailure::Io(_)), "{e:?}");
     }
 }
