@@ -171,21 +171,39 @@ fn suite_runs_every_scene_of_a_folder_and_records_one_that_cannot_run() {
     let out = String::from_utf8_lossy(&o.stdout);
     // A scene that cannot run: exit 1, and the others still ran.
     assert_eq!(o.status.code(), Some(1), "{out}\n{}", stderr(&o));
-    assert!(out.contains("scenes run: 1 of 2"), "{out}");
+    // Each scene under both controllers, side by side.
+    assert!(out.contains("default: scenes run: 1 of 2"), "{out}");
+    assert!(out.contains("paper: scenes run: 1 of 2"), "{out}");
     let md = std::fs::read_to_string(dir.join("out/suite.md")).expect("suite.md");
-    assert!(md.contains("| a_simple | missed_target |"), "{md}");
-    assert!(md.contains("`b_broken` failed:"), "{md}");
+    assert!(
+        md.contains("| a_simple | default | missed_target |"),
+        "{md}"
+    );
+    assert!(md.contains("| a_simple | paper | missed_target |"), "{md}");
+    assert!(md.contains("`b_broken` (default) failed:"), "{md}");
     let csv = std::fs::read_to_string(dir.join("out/suite.csv")).expect("suite.csv");
-    assert_eq!(csv.lines().count(), 3, "{csv}");
+    assert_eq!(csv.lines().count(), 5, "{csv}");
     let json: serde_json::Value = serde_json::from_str(
         &std::fs::read_to_string(dir.join("out/suite.json")).expect("suite.json"),
     )
     .expect("JSON");
     assert_eq!(json[0]["summary"]["steps"], 20);
+    assert_eq!(json[1]["controller"], "paper");
+    assert_eq!(json[1]["summary"]["steps"], 20);
     // The chart, with the default `charts` feature: a PNG.
     let png = std::fs::read(dir.join("out/suite.png")).expect("suite.png");
     assert!(png.starts_with(b"\x89PNG"), "not a PNG");
     let _ = std::fs::remove_dir_all(dir);
+}
+
+#[test]
+fn suite_with_an_unknown_controller_is_a_usage_error() {
+    let o = needle()
+        .args(["suite", "--quiet", "--controllers", "default,pid"])
+        .output()
+        .expect("suite");
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(stderr(&o).contains("`pid`"), "{}", stderr(&o));
 }
 
 #[test]

@@ -63,8 +63,9 @@ enum Command {
     /// shared memory and applies the command of `needle-controller` (run it with the same scene).
     Serve(ServeArgs),
     /// The public suite: the two benchmark scenes and every scene of a folder, run with one
-    /// configuration; writes suite.md, suite.csv and suite.json (exit: 0 all reached, 4 a scene
-    /// missed its target, 5 an obstacle hit, 3 a run diverged, 1 a scene could not run).
+    /// configuration under this project's controller and the paper's; writes suite.md,
+    /// suite.csv, suite.json and a chart (exit, from the first controller: 0 all reached, 4 a
+    /// scene missed its target, 5 an obstacle hit, 3 a run diverged, 1 a scene could not run).
     Suite(SuiteArgs),
     /// The benchmark report: both scenes under both controllers plus the mesh, δq, blend
     /// distance and constraint-spacing sweeps; writes summary.md, CSVs and SVG/PNG charts.
@@ -154,6 +155,11 @@ struct SuiteArgs {
     /// Only the folder's scenes, without the two benchmark scenes.
     #[arg(long)]
     no_benchmarks: bool,
+    /// The controllers compared on every scene, comma-separated: `default` (the scenes' own
+    /// settings) and `paper` (the paper's joint update); the first one's outcomes make the
+    /// exit code.
+    #[arg(long, value_delimiter = ',', default_value = "default,paper")]
+    controllers: Vec<String>,
     /// Override a field of every scene (repeatable; the value is TOML).
     #[arg(long = "set", value_name = "FIELD=VALUE")]
     set: Vec<String>,
@@ -411,11 +417,20 @@ fn suite_cmd(a: &SuiteArgs) -> ExitCode {
         };
         overrides.push((k.trim().to_owned(), v.trim().to_owned()));
     }
+    let mut variants = Vec::new();
+    for name in &a.controllers {
+        let Some(v) = suite::Variant::named(name.trim()) else {
+            eprintln!("error: --controllers `{name}`: expected `default` or `paper`");
+            return ExitCode::from(2);
+        };
+        variants.push(v);
+    }
     let opts = SuiteOptions {
         dir: a.dir.clone(),
         benchmarks: !a.no_benchmarks,
         overrides,
         steps: a.steps,
+        variants,
     };
     let scenes = match suite::scene_list(&opts) {
         Ok(s) => s,
@@ -427,7 +442,7 @@ fn suite_cmd(a: &SuiteArgs) -> ExitCode {
     let bar = if a.quiet {
         ProgressBar::hidden()
     } else {
-        ProgressBar::new(scenes.len() as u64)
+        ProgressBar::new((scenes.len() * opts.variants.len()) as u64)
     };
     bar.set_style(
         ProgressStyle::with_template("{elapsed_precise} [{bar:30}] {pos}/{len} scenes  {msg}")
@@ -435,10 +450,14 @@ fn suite_cmd(a: &SuiteArgs) -> ExitCode {
             .progress_chars("=> "),
     );
     let mut rows = Vec::new();
-    for (name, file) in &scenes {
-        let row = suite::run_scene(name, file.as_deref(), &opts, |k| {
+    for ((name, file), variant) in scenes
+        .iter()
+        .flat_map(|s| opts.variants.iter().map(move |v| (s, v)))
+    {
+        let who = format!("{name} ({})", variant.name);
+        let row = suite::run_scene(name, file.as_deref(), &opts, variant, |k| {
             if k % 20 == 0 {
-                bar.set_message(format!("{name}: step {k}"));
+                bar.set_message(format!("{who}: step {k}"));
             }
         });
         let what = match (&row.summary, &row.failure) {
@@ -452,7 +471,7 @@ fn suite_cmd(a: &SuiteArgs) -> ExitCode {
             (None, Some(why)) => format!("failed: {why}"),
             (None, None) => String::new(),
         };
-        bar.println(format!("{name}: {what}"));
+        bar.println(format!("{who}: {what}"));
         bar.inc(1);
         rows.push(row);
     }

@@ -1,5 +1,6 @@
 //! The suite's chart (`suite.svg`, `suite.png`): e_mean, e_max and e_final of every scene, the
-//! issue's "must" targets as lines, obstacle hits and failures marked.
+//! first controller's filled and the others' (by default the paper's update) hollow, the "must"
+//! targets as lines, the first controller's obstacle hits and failures marked.
 
 use super::SuiteRow;
 use crate::output::{OutputError, OutputFailure};
@@ -25,18 +26,30 @@ const METRICS: [(&str, RGBColor); 3] = [
 /// [`OutputError`] naming the file.
 pub fn write_chart(rows: &[SuiteRow], dir: &Path) -> Result<(), OutputError> {
     crate::report::charts::register_fonts();
+    let scenes = scene_names(rows);
     let svg = dir.join("suite.svg");
     draw(
         rows,
-        SVGBackend::new(&svg, size(rows.len())).into_drawing_area(),
+        SVGBackend::new(&svg, size(scenes.len())).into_drawing_area(),
     )
     .map_err(|e| OutputError::new(&svg, OutputFailure::Chart(e.to_string())))?;
     let png = dir.join("suite.png");
     draw(
         rows,
-        BitMapBackend::new(&png, size(rows.len())).into_drawing_area(),
+        BitMapBackend::new(&png, size(scenes.len())).into_drawing_area(),
     )
     .map_err(|e| OutputError::new(&png, OutputFailure::Chart(e.to_string())))
+}
+
+/// The scenes of `rows`, in order of first appearance.
+fn scene_names(rows: &[SuiteRow]) -> Vec<&str> {
+    let mut names: Vec<&str> = Vec::new();
+    for r in rows {
+        if !names.contains(&r.scene.as_str()) {
+            names.push(&r.scene);
+        }
+    }
+    names
 }
 
 /// The metric `k` of [`METRICS`] of a run.
@@ -52,7 +65,17 @@ where
     DB::ErrorType: 'static,
 {
     root.fill(&WHITE)?;
-    let n = rows.len().max(1);
+    let names = scene_names(rows);
+    let n = names.len().max(1);
+    let row_of = |r: &SuiteRow| names.iter().position(|s| *s == r.scene).unwrap_or(0) as f64;
+    let first = rows.first().map_or("", |r| r.controller.as_str());
+    let mut others: Vec<&str> = Vec::new();
+    for r in rows.iter().filter(|r| r.controller != first) {
+        if !others.contains(&r.controller.as_str()) {
+            others.push(&r.controller);
+        }
+    }
+    let others = others.join(", ");
     let ymax = rows
         .iter()
         .flat_map(|r| &r.summary)
@@ -60,7 +83,6 @@ where
         .filter(|v| v.is_finite())
         .fold(3.5_f64, f64::max)
         * 1.08;
-    let names: Vec<&str> = rows.iter().map(|r| r.scene.as_str()).collect();
     let mut chart = ChartBuilder::on(&root)
         .caption(
             "The public suite: tracking errors per scene (lines: the targets)",
@@ -100,36 +122,46 @@ where
     }
     for (k, (label, colour)) in METRICS.iter().enumerate() {
         let offset = (1.0 - k as f64) * 0.22;
-        let pts: Vec<(f64, f64)> = rows
-            .iter()
-            .enumerate()
-            .filter_map(|(i, r)| {
-                let v = metric(r.summary.as_ref()?, k);
-                v.is_finite().then_some((v, i as f64 + offset))
-            })
-            .collect();
+        let points = |mine: bool| -> Vec<(f64, f64)> {
+            rows.iter()
+                .filter(|r| (r.controller == first) == mine)
+                .filter_map(|r| {
+                    let v = metric(r.summary.as_ref()?, k);
+                    v.is_finite().then_some((v, row_of(r) + offset))
+                })
+                .collect()
+        };
         let c = *colour;
         chart
-            .draw_series(pts.iter().map(|&p| Circle::new(p, 5, c.filled())))?
-            .label(*label)
+            .draw_series(points(true).iter().map(|&p| Circle::new(p, 5, c.filled())))?
+            .label(format!("{label} ({first})"))
             .legend(move |(x, y)| Circle::new((x + 8, y), 5, c.filled()));
+        let hollow = points(false);
+        if !hollow.is_empty() {
+            chart
+                .draw_series(hollow.iter().map(|&p| Circle::new(p, 5, c.stroke_width(2))))?
+                .label(format!("{label} ({others})"))
+                .legend(move |(x, y)| Circle::new((x + 8, y), 5, c.stroke_width(2)));
+        }
     }
     let hits: Vec<(f64, f64)> = rows
         .iter()
-        .enumerate()
-        .filter(|(_, r)| {
+        .filter(|r| r.controller == first)
+        .filter(|r| {
             r.summary
                 .as_ref()
                 .is_none_or(|s| s.outcome == Outcome::ObstacleHit)
         })
-        .map(|(i, _)| (ymax * 0.97, i as f64))
+        .map(|r| (ymax * 0.97, row_of(r)))
         .collect();
     chart
         .draw_series(
             hits.iter()
                 .map(|&p| Cross::new(p, 7, BLACK.stroke_width(2))),
         )?
-        .label("obstacle hit (or the scene could not run)")
+        .label(format!(
+            "obstacle hit (or the scene could not run), {first}"
+        ))
         .legend(|(x, y)| Cross::new((x + 8, y), 5, BLACK.stroke_width(2)));
     crate::report::charts::legend(&mut chart, 13, SeriesLabelPosition::LowerRight)?;
     root.present()?;

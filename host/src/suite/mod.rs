@@ -1,6 +1,7 @@
 //! The public suite (`needle suite`): the two benchmark scenes and every scene file of a folder
 //! (`scenes/suite/` by default), each run to the end with one configuration (the scenes' own
-//! settings and the same overrides for all), and what issue "controller" measures of each —
+//! settings and the same overrides for all) under each controller compared (by default this
+//! project's joint update and the paper's, [`Variant`]), and what issue "controller" measures of each —
 //! outcome, e_mean, e_max, e_final, path deviation, min clearance, steps to the target against
 //! the nominal steps, Gauss-Seidel cap hits, CPU and wall time per step — in `suite.md`,
 //! `suite.csv` and `suite.json`, with the worst case over all scenes against the targets, and a
@@ -34,6 +35,35 @@ pub struct SuiteOptions {
     pub overrides: Vec<(String, String)>,
     /// Cap on the steps of every run (default: the whole path).
     pub steps: Option<usize>,
+    /// The controllers compared, each on every scene; the first one's outcomes make the exit
+    /// code.
+    pub variants: Vec<Variant>,
+}
+
+/// A controller of the comparison: a name and the overrides that select it (applied after
+/// [`SuiteOptions::overrides`]).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Variant {
+    /// Its name in the tables.
+    pub name: String,
+    /// The scene fields that make it.
+    pub overrides: Vec<(String, String)>,
+}
+
+impl Variant {
+    /// The named controllers: `default` (the scenes' own settings: the QP update) and `paper`
+    /// (`inverse.method = "paper"`, the paper's update).
+    pub fn named(name: &str) -> Option<Self> {
+        let overrides = match name {
+            "default" => Vec::new(),
+            "paper" => vec![("inverse.method".to_owned(), "\"paper\"".to_owned())],
+            _ => return None,
+        };
+        Some(Self {
+            name: name.to_owned(),
+            overrides,
+        })
+    }
 }
 
 /// One scene of the suite: its summary, or why it has none.
@@ -41,6 +71,8 @@ pub struct SuiteOptions {
 pub struct SuiteRow {
     /// The scene's name (its file stem, or the embedded scene's name).
     pub scene: String,
+    /// The controller's name ([`Variant::name`]).
+    pub controller: String,
     /// The run's summary.
     pub summary: Option<RunSummary>,
     /// Why the scene could not be loaded, set up or run.
@@ -72,21 +104,26 @@ pub fn scene_list(opts: &SuiteOptions) -> std::io::Result<Vec<(String, Option<Pa
     Ok(out)
 }
 
-/// Runs one scene of the suite (`file` none: the embedded scene `name`); `observe` sees every
-/// step.
+/// Runs one scene of the suite (`file` none: the embedded scene `name`) with the controller
+/// `variant`; `observe` sees every step.
 pub fn run_scene(
     name: &str,
     file: Option<&Path>,
     opts: &SuiteOptions,
+    variant: &Variant,
     mut observe: impl FnMut(usize),
 ) -> SuiteRow {
+    let overrides: Vec<(String, String)> = (opts.overrides.iter())
+        .chain(&variant.overrides)
+        .cloned()
+        .collect();
     let t0 = Instant::now();
     let loaded = match file {
         Some(f) => Scene::load(f).map_err(|e| e.to_string()),
         None => Scene::builtin(name).ok_or_else(|| format!("no embedded scene `{name}`")),
     };
     let result = loaded
-        .and_then(|s| s.with_overrides(&opts.overrides).map_err(|e| e.to_string()))
+        .and_then(|s| s.with_overrides(&overrides).map_err(|e| e.to_string()))
         .and_then(|scene| {
             let ropts = RunOptions {
                 steps: opts.steps,
@@ -105,15 +142,22 @@ pub fn run_scene(
     };
     SuiteRow {
         scene: name.to_owned(),
+        controller: variant.name.clone(),
         summary,
         failure,
         wall_s: t0.elapsed().as_secs_f64(),
     }
 }
 
-/// The suite's exit code: 1 when a scene could not be run, else the worst outcome's
+/// The suite's exit code, from the first controller's rows (the comparison's others are
+/// reported, not judged): 1 when a scene could not be run, else the worst outcome's
 /// ([`Outcome::exit_code`]: diverged 3, obstacle hit 5, missed 4, all reached 0).
 pub fn exit_code(rows: &[SuiteRow]) -> u8 {
+    let first = rows.first().map(|r| r.controller.clone());
+    let rows: Vec<&SuiteRow> = rows
+        .iter()
+        .filter(|r| Some(&r.controller) == first.as_ref())
+        .collect();
     if rows.iter().any(|r| r.summary.is_none()) {
         return 1;
     }
@@ -155,6 +199,25 @@ fn cell(v: f64, digits: usize) -> String {
 /// The worst case over the rows that ran, with the issue's targets ("must"): e_mean ≤ 1.0,
 /// e_max ≤ 3.0, e_final ≤ 1.0 mm, clearance > 0, steps ≤ 1.2 × nominal, no GS cap hit.
 fn worst_lines(rows: &[SuiteRow]) -> Vec<String> {
+    let mut names: Vec<&str> = Vec::new();
+    for r in rows {
+        if !names.contains(&r.controller.as_str()) {
+            names.push(&r.controller);
+        }
+    }
+    names
+        .iter()
+        .flat_map(|name| {
+            let mine: Vec<&SuiteRow> = rows.iter().filter(|r| r.controller == *name).collect();
+            worst_of(&mine)
+                .into_iter()
+                .map(move |line| format!("{name}: {line}"))
+        })
+        .collect()
+}
+
+/// [`worst_lines`] of one controller's rows.
+fn worst_of(rows: &[&SuiteRow]) -> Vec<String> {
     let s: Vec<&RunSummary> = rows.iter().flat_map(|r| &r.summary).collect();
     let worst = |f: fn(&RunSummary) -> f64| s.iter().map(|x| f(x)).fold(f64::NAN, f64::max);
     let reached = s.iter().filter(|x| x.outcome == Outcome::Reached).count();
@@ -190,8 +253,9 @@ fn worst_lines(rows: &[SuiteRow]) -> Vec<String> {
     ]
 }
 
-const HEADER: [&str; 13] = [
+const HEADER: [&str; 14] = [
     "scene",
+    "controller",
     "outcome",
     "e_mean_mm",
     "e_max_mm",
@@ -209,12 +273,13 @@ const HEADER: [&str; 13] = [
 /// The cells of one row, in [`HEADER`]'s order.
 fn cells(r: &SuiteRow) -> Vec<String> {
     let Some(s) = &r.summary else {
-        let mut v = vec![r.scene.clone(), "failed".to_owned()];
+        let mut v = vec![r.scene.clone(), r.controller.clone(), "failed".to_owned()];
         v.resize(HEADER.len(), String::new());
         return v;
     };
     vec![
         r.scene.clone(),
+        r.controller.clone(),
         s.outcome.name().to_owned(),
         cell(s.e_mean_mm, 3),
         cell(s.e_max_mm, 3),
@@ -240,8 +305,10 @@ pub fn markdown(rows: &[SuiteRow], overrides: &[(String, String)]) -> String {
     let _ = writeln!(
         md,
         "One configuration for every scene: the scenes' own settings{}. Written by `needle \
-         suite`. Errors in mm; steps to the target: the step at which the tip was within 1 mm of \
-         the path's end (as in `needle run`); CPU per step summed over threads.\n",
+         suite`, every scene under each controller compared (`default`: the scenes' own \
+         settings; `paper`: the paper's joint update, `inverse.method = \"paper\"`). Errors in \
+         mm; steps to the target: the step at which the tip was within 1 mm of the path's end \
+         (as in `needle run`); CPU per step summed over threads.\n",
         if set.is_empty() {
             String::new()
         } else {
@@ -260,10 +327,10 @@ pub fn markdown(rows: &[SuiteRow], overrides: &[(String, String)]) -> String {
     }
     for r in rows {
         if let Some(why) = &r.failure {
-            let _ = writeln!(md, "- `{}` failed: {why}", r.scene);
+            let _ = writeln!(md, "- `{}` ({}) failed: {why}", r.scene, r.controller);
         }
         if let Some(why) = r.summary.as_ref().and_then(|s| s.stopped.as_ref()) {
-            let _ = writeln!(md, "- `{}` stopped: {why}", r.scene);
+            let _ = writeln!(md, "- `{}` ({}) stopped: {why}", r.scene, r.controller);
         }
     }
     md
