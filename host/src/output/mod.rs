@@ -81,6 +81,8 @@ pub struct StepMetrics {
     pub lambda_sliding: f64,
     /// Gauss-Seidel iterations of the final solve.
     pub gs_iterations: u32,
+    /// The core's status flags (`needle_core::payload::StatusFlags`, bits OR-ed).
+    pub flags: u32,
     /// Gauss-Seidel residual of the final solve.
     pub gs_residual: f64,
     /// Constraint rows this step.
@@ -121,6 +123,7 @@ impl MetricsWriter {
                 "lambda_sliding_N",
                 "gs_iterations",
                 "gs_residual",
+                "flags",
                 "rows",
                 "fm_ms",
                 "cd_ms",
@@ -155,6 +158,7 @@ impl MetricsWriter {
         row.extend([m.lambda_base, m.lambda_contact, m.lambda_sliding].map(|v| v.to_string()));
         row.push(m.gs_iterations.to_string());
         row.push(m.gs_residual.to_string());
+        row.push(m.flags.to_string());
         row.push(m.rows.to_string());
         row.extend(m.time_ms.iter().map(|v| v.to_string()));
         row.extend(m.q.iter().map(|v| v.to_string()));

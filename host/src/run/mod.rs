@@ -51,7 +51,7 @@ use std::path::PathBuf;
 use std::time::Duration;
 use summary::{Ending, Statistics};
 use vtk_frames::VtkFrames;
-use watch::Watchdog;
+use watch::{Blocked, Watchdog};
 
 /// The tip is settled at the path's end within this distance [mm] (half the reach tolerance).
 pub const SETTLED_MM: f64 = metrics::REACH_TOLERANCE_MM / 2.0;
@@ -257,15 +257,24 @@ fn naive_replay(
 struct Books {
     stats: Statistics,
     watchdog: Watchdog,
+    blocked: Blocked,
     files: Vec<Box<dyn Observer>>,
 }
 
+/// Why a run stops after a step.
+enum Stop {
+    /// Before the step is recorded (it diverged).
+    Before(StopReason),
+    /// After it was recorded (the controller is blocked).
+    After(StopReason),
+}
+
 impl Books {
-    /// Checks step `r` and records it; a reason to stop instead (the step is then not recorded
-    /// in the files).
-    fn step(&mut self, world: &World, r: &StepReport) -> Result<Option<StopReason>, RunError> {
+    /// Checks step `r` and records it; a reason to stop instead ([`Stop::Before`]: the step is
+    /// then not recorded in the files) or after it ([`Stop::After`]).
+    fn step(&mut self, world: &World, r: &StepReport) -> Result<Option<Stop>, RunError> {
         if let Some(why) = self.watchdog.after_step(world, r) {
-            return Ok(Some(why));
+            return Ok(Some(Stop::Before(why)));
         }
         self.stats.step(world, r)?;
         if let Some(why) = self
@@ -273,12 +282,12 @@ impl Books {
             .sampled()
             .and_then(|st| self.watchdog.strain(&st))
         {
-            return Ok(Some(why));
+            return Ok(Some(Stop::Before(why)));
         }
         for f in &mut self.files {
             f.step(world, r)?;
         }
-        Ok(None)
+        Ok(self.blocked.after_step(r).map(Stop::After))
     }
 }
 
@@ -317,6 +326,7 @@ pub fn run_setup(
     let mut books = Books {
         stats: Statistics::new(&world, n),
         watchdog: Watchdog::new(&world),
+        blocked: Blocked::new(params.dt),
         files,
     };
     // Grown step by step: `steps` may be far more than the run will reach.
@@ -339,13 +349,13 @@ pub fn run_setup(
             }
         };
         let outside = crate::cpu::thread_s();
-        let why = books.step(&world, &r)?;
-        if why.is_none() {
+        let stop = books.step(&world, &r)?;
+        if !matches!(stop, Some(Stop::Before(_))) {
             observe(&r);
             reports.push(r);
         }
         bookkeeping += crate::cpu::thread_s() - outside;
-        if let Some(why) = why {
+        if let Some(Stop::Before(why) | Stop::After(why)) = stop {
             stopped = Some((k, why));
             break;
         }

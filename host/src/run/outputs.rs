@@ -36,6 +36,7 @@ impl Observer for MetricsCsv {
             lambda_sliding: r.lambda_norms[2],
             gs_iterations: r.solver.iterations,
             gs_residual: r.solver.final_residual,
+            flags: r.solver.flags,
             rows: r.rows,
             time_ms: [
                 r.times.fm,

@@ -270,8 +270,11 @@ impl Statistics {
             .iter()
             .copied()
             .fold(f64::INFINITY, f64::min);
+        // A blocked controller stopped on purpose: its run missed the target, it did not fail.
+        let failed = (end.stopped.as_ref())
+            .is_some_and(|(_, why)| !matches!(why, StopReason::Blocked { .. }));
         let outcome = Outcome::of(
-            end.stopped.is_some() || reports.is_empty(),
+            failed || reports.is_empty(),
             min_clearance_mm < 0.0,
             self.path.e_end,
             self.path.steps_to_target,

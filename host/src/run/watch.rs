@@ -11,6 +11,7 @@ use crate::fem::tetra::StrainStats;
 use crate::step::StepReport;
 use crate::world::World;
 use nalgebra::Vector3;
+use needle_core::payload::StatusFlags;
 use serde::Serialize;
 use std::fmt;
 
@@ -84,6 +85,15 @@ pub enum StopReason {
         /// The error chain.
         message: String,
     },
+    /// For [`BLOCKED_AFTER_S`] the controller could not bring the tip toward its target
+    /// without entering an obstacle's clearance margin (flags `CLEARANCE_ACTIVE` and
+    /// `TARGET_UNREACHABLE` in every step): the run stops rather than push into the obstacle.
+    Blocked {
+        /// Steps in a row.
+        steps: usize,
+        /// Their duration [s].
+        seconds: f64,
+    },
 }
 
 impl StopReason {
@@ -140,7 +150,55 @@ impl fmt::Display for StopReason {
             Self::StepFailed { message } => write!(f, "{message}"),
             Self::NoCommand { waited_s } => write!(f, "no command for {waited_s:.1} s"),
             Self::IkFailed { message } => write!(f, "{message}"),
+            Self::Blocked { steps, seconds } => write!(
+                f,
+                "blocked: for {seconds:.1} s ({steps} steps) an obstacle's clearance margin held \
+                 the needle and the target stayed out of reach; stopped rather than push into it"
+            ),
         }
+    }
+}
+
+/// How long the controller may be held by a clearance margin with its target out of reach
+/// before the run stops ([`StopReason::Blocked`]) [s].
+pub const BLOCKED_AFTER_S: f64 = 1.0;
+
+/// Counts the steps in a row in which a clearance row held the controller and the target was
+/// out of reach ([`StopReason::Blocked`]).
+#[derive(Clone, Debug)]
+pub struct Blocked {
+    run: usize,
+    limit: usize,
+    dt: f64,
+}
+
+impl Blocked {
+    /// For a control period `dt` [s]: stops after [`BLOCKED_AFTER_S`].
+    pub fn new(dt: f64) -> Self {
+        let limit = (BLOCKED_AFTER_S / dt).ceil();
+        Self {
+            run: 0,
+            limit: if limit.is_finite() && limit >= 1.0 {
+                limit as usize
+            } else {
+                1
+            },
+            dt,
+        }
+    }
+
+    /// After a recorded step: the reason to stop once the run of held steps reaches the limit.
+    pub fn after_step(&mut self, r: &StepReport) -> Option<StopReason> {
+        let held = StatusFlags::CLEARANCE_ACTIVE | StatusFlags::TARGET_UNREACHABLE;
+        if r.solver.flags & held == held {
+            self.run += 1;
+        } else {
+            self.run = 0;
+        }
+        (self.run >= self.limit).then(|| StopReason::Blocked {
+            steps: self.run,
+            seconds: self.run as f64 * self.dt,
+        })
     }
 }
 
@@ -230,5 +288,50 @@ impl Watchdog {
             strain: st.max_strain,
             element: st.element,
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn report(flags: u32) -> StepReport {
+        let mut r = StepReport::default();
+        r.solver.flags = flags;
+        r
+    }
+
+    #[test]
+    fn blocked_counts_steps_held_by_a_clearance_with_the_target_out_of_reach() {
+        let held = StatusFlags::CLEARANCE_ACTIVE | StatusFlags::TARGET_UNREACHABLE;
+        // dt = 0.04 s: 25 steps make the second.
+        let mut b = Blocked::new(0.04);
+        assert!((0..24).all(|_| b.after_step(&report(held)).is_none()));
+        // One free step starts the count again.
+        assert!(
+            b.after_step(&report(StatusFlags::CLEARANCE_ACTIVE))
+                .is_none()
+        );
+        assert!(
+            b.after_step(&report(StatusFlags::TARGET_UNREACHABLE))
+                .is_none()
+        );
+        assert!((0..24).all(|_| {
+            b.after_step(&report(held | StatusFlags::NEAR_SINGULAR))
+                .is_none()
+        }));
+        let why = b.after_step(&report(held)).expect("blocked");
+        assert!(
+            matches!(why, StopReason::Blocked { steps: 25, .. }),
+            "{why:?}"
+        );
+        assert!(!why.is_divergence());
+        assert!(
+            why.to_string().starts_with("blocked: for 1.0 s (25 steps)"),
+            "{why}"
+        );
+        // A nonsensical period still gives a limit of at least one step.
+        let mut b = Blocked::new(f64::NAN);
+        assert!(b.after_step(&report(held)).is_some());
     }
 }
