@@ -1,29 +1,44 @@
-//! The report's charts, as SVG and PNG: `error_vs_depth` (the paper's Fig. 7), `stage_times`
-//! (Fig. 8) and `speed_vs_error`. Text is drawn with DejaVu Sans, embedded in the binary (no
-//! system font is needed).
+//! The report's charts, as SVG and PNG: `error_vs_depth` (the paper's Fig. 7, with its bounds),
+//! `stage_times` (Fig. 8: stacked stage means per mesh size) and `speed_vs_error` (CPU time per
+//! step against e_mean, every run labelled). What they show is computed in [`data`] (tested
+//! there); this file draws it. Text is drawn with DejaVu Sans, embedded in the binary (no system
+//! font is needed).
 
-use super::{
-    Group, PAPER_COMPLEX_E_MEAN, PAPER_TIME_PER_STEP, ReportError, ReportRun, controller_name,
-    paper_time,
+pub(crate) mod data;
+mod place;
+
+use super::{ReportError, ReportRun, paper_time};
+use data::{
+    DepthLine, PointKind, RunFacts, STAGE_NAMES, default_settings, depth_lines, depth_references,
+    measure_tick, paper_points, speed_points, stage_bars,
 };
-use crate::run::ControllerKind;
+use place::{Rect, place_labels};
 use plotters::coord::Shift;
+use plotters::coord::types::RangedCoordf64;
+use plotters::element::DashedPathElement;
 use plotters::prelude::*;
-use std::fmt::Write as _;
+use plotters::style::text_anchor::{HPos, Pos, VPos};
+use std::ops::Range;
 use std::path::{Path, PathBuf};
 
 /// Draws the three charts into `dir`, as SVG and PNG; returns the files written.
 pub(super) fn write_charts(dir: &Path, runs: &[ReportRun]) -> Result<Vec<PathBuf>, ReportError> {
+    let facts: Vec<RunFacts> = runs.iter().map(RunFacts::of).collect();
+    write_charts_of(dir, &facts)
+}
+
+/// [`write_charts`] from the runs' facts.
+pub(crate) fn write_charts_of(dir: &Path, facts: &[RunFacts]) -> Result<Vec<PathBuf>, ReportError> {
     register_fonts();
     let mut files = Vec::new();
-    for (name, chart) in [
-        ("error_vs_depth", Chart::ErrorVsDepth(runs)),
-        ("stage_times", Chart::StageTimes(runs)),
-        ("speed_vs_error", Chart::SpeedVsError(runs)),
+    for (name, chart, size) in [
+        ("error_vs_depth", Chart::ErrorVsDepth(facts), CHART_SIZE),
+        ("stage_times", Chart::StageTimes(facts), CHART_SIZE),
+        ("speed_vs_error", Chart::SpeedVsError(facts), SPEED_SIZE),
     ] {
         let svg = dir.join(format!("{name}.svg"));
         chart
-            .draw(SVGBackend::new(&svg, CHART_SIZE).into_drawing_area())
+            .draw(SVGBackend::new(&svg, size).into_drawing_area())
             .map_err(|reason| ReportError::Chart {
                 file: svg.clone(),
                 reason,
@@ -31,7 +46,7 @@ pub(super) fn write_charts(dir: &Path, runs: &[ReportRun]) -> Result<Vec<PathBuf
         files.push(svg);
         let png = dir.join(format!("{name}.png"));
         chart
-            .draw(BitMapBackend::new(&png, CHART_SIZE).into_drawing_area())
+            .draw(BitMapBackend::new(&png, size).into_drawing_area())
             .map_err(|reason| ReportError::Chart {
                 file: png.clone(),
                 reason,
@@ -42,6 +57,8 @@ pub(super) fn write_charts(dir: &Path, runs: &[ReportRun]) -> Result<Vec<PathBuf
 }
 
 const CHART_SIZE: (u32, u32) = (1400, 560);
+/// Speed against error is taller: every point carries a label.
+const SPEED_SIZE: (u32, u32) = (1400, 1000);
 
 const COLORS: [RGBColor; 7] = [
     RGBColor(31, 119, 180),
@@ -52,6 +69,10 @@ const COLORS: [RGBColor; 7] = [
     RGBColor(140, 86, 75),
     RGBColor(227, 119, 194),
 ];
+/// The paper's reference lines and markers.
+const PAPER: RGBColor = RGBColor(90, 90, 90);
+/// Point labels and leader lines.
+const LABEL: RGBColor = RGBColor(40, 40, 40);
 
 /// Registers the embedded DejaVu Sans as plotters' `sans-serif` (once).
 pub(crate) fn register_fonts() {
@@ -69,9 +90,9 @@ pub(crate) fn register_fonts() {
 
 /// A chart and its data.
 enum Chart<'a> {
-    ErrorVsDepth(&'a [ReportRun]),
-    StageTimes(&'a [ReportRun]),
-    SpeedVsError(&'a [ReportRun]),
+    ErrorVsDepth(&'a [RunFacts]),
+    StageTimes(&'a [RunFacts]),
+    SpeedVsError(&'a [RunFacts]),
 }
 
 type DrawResult = Result<(), Box<dyn std::error::Error>>;
@@ -101,15 +122,21 @@ impl Chart<'_> {
         DB::ErrorType: 'static,
     {
         let r = match self {
-            Chart::ErrorVsDepth(runs) => error_vs_depth(&root, runs),
-            Chart::StageTimes(runs) => stage_times(&root, runs),
-            Chart::SpeedVsError(runs) => speed_vs_error(&root, runs),
+            Chart::ErrorVsDepth(f) => error_vs_depth(&root, f),
+            Chart::StageTimes(f) => stage_times(&root, f),
+            Chart::SpeedVsError(f) => speed_vs_error(&root, f),
         };
         r.and_then(|()| root.present().map_err(Into::into))
             .map_err(|e| e.to_string())
     }
 }
 
+/// DejaVu Sans of `size` px.
+fn text_style(size: u32) -> TextStyle<'static> {
+    TextStyle::from(("sans-serif", size).into_font())
+}
+
+/// 10 % above `x` (1 when `x` is not a positive number).
 fn nice_max(x: f64) -> f64 {
     if !(x.is_finite() && x > 0.0) {
         return 1.0;
@@ -117,10 +144,49 @@ fn nice_max(x: f64) -> f64 {
     x * 1.1
 }
 
-/// Fig. 7: error against depth, one panel per scene, inverse and naive.
+/// A horizontal dashed reference line at `y` over the chart's width, its label above its left
+/// (`left`) or right end; returns the label's box [px].
+fn reference_line<'a, DB: DrawingBackend + 'a>(
+    chart: &mut ChartContext<'a, DB, Cartesian2d<RangedCoordf64, RangedCoordf64>>,
+    y: f64,
+    label: &str,
+    left: bool,
+) -> Result<Rect, Box<dyn std::error::Error>>
+where
+    DB::ErrorType: 'static,
+{
+    let x = chart.x_range();
+    chart.draw_series(DashedLineSeries::new(
+        [(x.start, y), (x.end, y)],
+        8,
+        5,
+        PAPER.stroke_width(2),
+    ))?;
+    let font = text_style(13).color(&PAPER);
+    let (w, h) = chart.plotting_area().estimate_text_size(label, &font)?;
+    let (w, h) = (w as i32, h as i32);
+    let (end, dx, hpos) = if left {
+        (x.start, 6, HPos::Left)
+    } else {
+        (x.end, -6, HPos::Right)
+    };
+    let (px, py) = chart.backend_coord(&(end, y));
+    chart.plotting_area().draw(
+        &(EmptyElement::at((end, y))
+            + Text::new(
+                label.to_owned(),
+                (dx, -3),
+                font.pos(Pos::new(hpos, VPos::Bottom)),
+            )),
+    )?;
+    let x0 = if left { px + dx } else { px + dx - w };
+    Ok(Rect::at(x0, py - 3 - h, w, h))
+}
+
+/// Fig. 7: error against depth, one panel per scene, inverse and naive, with the paper's bounds.
 fn error_vs_depth<DB: DrawingBackend>(
     root: &DrawingArea<DB, Shift>,
-    runs: &[ReportRun],
+    facts: &[RunFacts],
 ) -> DrawResult
 where
     DB::ErrorType: 'static,
@@ -128,58 +194,61 @@ where
     root.fill(&WHITE)?;
     let (title, body) = root.split_vertically(40);
     title.titled(
-        "Tracking error against insertion depth (the paper's Fig. 7)",
+        "Tracking error against insertion depth (the paper's Fig. 7), with the paper's bounds",
         ("sans-serif", 22),
     )?;
     let panels = body.split_evenly((1, 2));
     for (panel, scene) in panels.iter().zip(["simple", "complex"]) {
-        let lines: Vec<&ReportRun> = runs
-            .iter()
-            .filter(|r| r.scene == scene && r.parameter(Group::Controllers).is_some())
-            .collect();
+        let lines: Vec<DepthLine> = depth_lines(facts, scene);
+        let refs = depth_references(scene);
         let max_d = lines
             .iter()
-            .flat_map(|r| r.error_by_depth.iter().map(|p| p.0))
+            .flat_map(|l| l.points.iter().map(|p| p.0))
             .fold(0.0, f64::max);
         let hi = lines
             .iter()
-            .flat_map(|r| r.error_by_depth.iter().map(|p| p.1))
-            .filter(|e| e.is_finite())
+            .flat_map(|l| l.points.iter().map(|p| p.1))
+            .chain(refs.iter().map(|r| r.0))
             .fold(0.0, f64::max);
-        let hi = nice_max(hi);
         let mut chart = ChartBuilder::on(panel)
             .caption(format!("{scene} path"), ("sans-serif", 18))
             .margin(12)
             .x_label_area_size(45)
             .y_label_area_size(60)
-            .build_cartesian_2d(0.0..nice_max(max_d).max(1.0), 0.0..hi)?;
+            // Headroom: the legend sits above the highest curve or bound.
+            .build_cartesian_2d(0.0..nice_max(max_d).max(1.0), 0.0..nice_max(hi) * 1.2)?;
         chart
             .configure_mesh()
             .x_desc("insertion depth [mm]")
             .y_desc("tracking error |tip − target| [mm]")
+            .x_label_formatter(&|x| measure_tick(*x))
+            .y_label_formatter(&|y| measure_tick(*y))
+            .light_line_style(BLACK.mix(0.04))
             .label_style(("sans-serif", 14))
             .axis_desc_style(("sans-serif", 15))
             .draw()?;
-        for r in &lines {
-            let color = match r.controller {
-                ControllerKind::Inverse => COLORS[0],
-                ControllerKind::Naive => COLORS[1],
-            };
-            let mut label = controller_name(r.controller).to_owned();
-            if let Some(s) = &r.summary {
-                let _ = write!(label, ": e_mean {:.2} mm", s.e_mean_mm);
-                if !s.completed {
-                    label.push_str(&format!(" (stopped at step {}: see summary.md)", s.steps));
-                }
-            }
+        for l in &lines {
+            let color = if l.naive { COLORS[1] } else { COLORS[0] };
             chart
                 .draw_series(LineSeries::new(
-                    r.error_by_depth.iter().filter(|p| p.1.is_finite()).copied(),
+                    l.points.iter().copied(),
                     color.stroke_width(1),
                 ))?
-                .label(label)
+                .label(l.label.clone())
                 .legend(move |(x, y)| {
                     PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(2))
+                });
+        }
+        for (y, label) in &refs {
+            reference_line(&mut chart, *y, label, false)?;
+        }
+        if !refs.is_empty() {
+            // One legend entry for both lines (each is labelled where it is drawn).
+            chart
+                .draw_series(std::iter::empty::<Circle<(f64, f64), i32>>())?
+                .label("the paper's bounds (IROS 2016)")
+                .legend(|(x, y)| {
+                    DashedPathElement::new(vec![(x, y), (x + 20, y)], 5, 3, PAPER.stroke_width(2))
                 });
         }
         legend(&mut chart, 14, SeriesLabelPosition::UpperLeft)?;
@@ -187,66 +256,33 @@ where
     Ok(())
 }
 
-/// The stages of a step, in the order they run.
-const STAGE_NAMES: [&str; 5] = [
-    "FM free motion",
-    "CD proximity",
-    "CC compliance",
-    "SC constraint solves",
-    "corr correction",
-];
-
-/// The mesh group's runs of `scene`: (gel nodes, the five stage medians), by node count.
-fn stage_bars(runs: &[ReportRun], scene: &str) -> Vec<(f64, [f64; 5])> {
-    let mut bars: Vec<(f64, [f64; 5])> = runs
-        .iter()
-        .filter(|r| r.scene == scene && r.parameter(Group::Mesh).is_some())
-        .filter_map(|r| {
-            let t = &r.summary.as_ref()?.timing;
-            Some((
-                r.nodes_target as f64,
-                [
-                    t.fm.median_ms,
-                    t.cd.median_ms,
-                    t.cc.median_ms,
-                    t.sc.median_ms,
-                    t.correction.median_ms,
-                ],
-            ))
-        })
-        .collect();
-    bars.sort_by(|a, b| a.0.total_cmp(&b.0));
-    bars
-}
-
-/// Fig. 8: stacked stage medians per mesh size, one panel per scene, with the paper's totals.
-fn stage_times<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, runs: &[ReportRun]) -> DrawResult
+/// Fig. 8: the stage means of a step stacked per mesh size (they add up to the mean step), one
+/// panel per scene, with the paper's time per step.
+fn stage_times<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, facts: &[RunFacts]) -> DrawResult
 where
     DB::ErrorType: 'static,
 {
     root.fill(&WHITE)?;
     let (title, body) = root.split_vertically(40);
     title.titled(
-        "Time per step by stage and mesh size (medians; the paper's Fig. 8)",
+        "Wall time per step by stage and mesh size: stage means, stacked to the mean step \
+         (the paper's Fig. 8)",
         ("sans-serif", 22),
     )?;
     let panels = body.split_evenly((1, 2));
-    let ymax = runs
+    let scenes = ["simple", "complex"];
+    let all: Vec<_> = scenes.iter().map(|s| stage_bars(facts, s)).collect();
+    let ymax = all
         .iter()
-        .filter(|r| r.parameter(Group::Mesh).is_some())
-        .filter_map(|r| r.summary.as_ref())
-        .map(|s| {
-            let t = &s.timing;
-            t.fm.median_ms
-                + t.cd.median_ms
-                + t.cc.median_ms
-                + t.sc.median_ms
-                + t.correction.median_ms
-        })
-        .chain(PAPER_TIME_PER_STEP.iter().map(|p| p.1))
+        .flatten()
+        .flat_map(|b| [Some(b.step_mean_ms), paper_time(b.nodes_target)])
+        .flatten()
         .fold(0.0, f64::max);
-    for (panel, scene) in panels.iter().zip(["simple", "complex"]) {
-        let bars = stage_bars(runs, scene);
+    // "other" is drawn and listed only where it is visible (the stages cover the step).
+    let show_other = all.iter().flatten().any(|b| b.segments[5] > 0.005);
+    for ((panel, scene), bars) in panels.iter().zip(scenes).zip(&all) {
+        let labels: Vec<String> = bars.iter().map(|b| b.label.clone()).collect();
+        let n = bars.len().max(1);
         let mut chart = ChartBuilder::on(panel)
             .caption(
                 format!("{scene} path, inverse controller"),
@@ -255,21 +291,42 @@ where
             .margin(12)
             .x_label_area_size(45)
             .y_label_area_size(60)
-            .build_cartesian_2d(300.0..2100.0, 0.0..ymax * 1.15)?;
+            .build_cartesian_2d(-0.6..n as f64 - 0.4, 0.0..nice_max(ymax) * 1.05)?;
         chart
             .configure_mesh()
-            .x_desc("gel nodes (mesher target)")
-            .y_desc("time per step [ms]")
+            .disable_x_mesh()
+            .x_desc("gel mesh (node count of the mesh used)")
+            .y_desc("wall time per step, mean [ms]")
+            .x_labels(0)
+            .y_label_formatter(&|y| measure_tick(*y))
+            .light_line_style(BLACK.mix(0.04))
             .label_style(("sans-serif", 14))
             .axis_desc_style(("sans-serif", 15))
             .draw()?;
-        let half = 90.0;
+        // The categories under the axis: the node count of each mesh, an integer.
+        for (i, l) in labels.iter().enumerate() {
+            let (px, py) = chart.backend_coord(&(i as f64, 0.0));
+            root.draw(&Text::new(
+                l.clone(),
+                (px, py + 8),
+                text_style(14).pos(Pos::new(HPos::Center, VPos::Top)),
+            ))?;
+        }
+        let half = 0.3;
         for (k, name) in STAGE_NAMES.iter().enumerate() {
-            let color = COLORS[k];
+            if k == 5 && !show_other {
+                continue;
+            }
+            let color = if k == 5 {
+                RGBColor(170, 170, 170)
+            } else {
+                COLORS[k]
+            };
             chart
-                .draw_series(bars.iter().map(|(x, t)| {
-                    let y0: f64 = t[..k].iter().sum();
-                    let y1 = y0 + t[k];
+                .draw_series(bars.iter().enumerate().map(|(i, b)| {
+                    let x = i as f64;
+                    let y0: f64 = b.segments[..k].iter().sum();
+                    let y1 = y0 + b.segments[k];
                     Rectangle::new([(x - half, y0), (x + half, y1)], color.filled())
                 }))?
                 .label(*name)
@@ -277,171 +334,477 @@ where
                     Rectangle::new([(x, y - 5), (x + 14, y + 5)], color.filled())
                 });
         }
+        // The mean step on top of each stack.
+        chart.draw_series(bars.iter().enumerate().map(|(i, b)| {
+            Text::new(
+                format!("{} ms", measure_tick(b.step_mean_ms)),
+                (i as f64, b.step_mean_ms),
+                text_style(14).pos(Pos::new(HPos::Center, VPos::Bottom)),
+            )
+        }))?;
+        // The paper's time per step at the mesh size it gives it for.
+        let paper: Vec<(f64, f64)> = bars
+            .iter()
+            .enumerate()
+            .filter_map(|(i, b)| Some((i as f64, paper_time(b.nodes_target)?)))
+            .collect();
         chart
             .draw_series(
-                PAPER_TIME_PER_STEP
+                paper
                     .iter()
-                    .map(|&(n, t)| Cross::new((n as f64, t), 7, BLACK.stroke_width(2))),
+                    .map(|&(x, t)| Cross::new((x, t), 7, BLACK.stroke_width(2))),
             )?
-            .label("the paper's time per step (SOFA + GPU)")
+            .label("the paper's time per step (SOFA, compliance on a GPU)")
             .legend(|(x, y)| Cross::new((x + 7, y), 5, BLACK.stroke_width(2)));
+        chart.draw_series(paper.iter().map(|&(x, t)| {
+            EmptyElement::at((x, t))
+                + Text::new(
+                    format!("the paper: {} ms", measure_tick(t)),
+                    (0, -10),
+                    text_style(13).pos(Pos::new(HPos::Center, VPos::Bottom)),
+                )
+        }))?;
         legend(&mut chart, 13, SeriesLabelPosition::UpperLeft)?;
     }
     Ok(())
 }
 
+/// The markers of speed against error (chart and legend alike).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Marker {
+    Point(PointKind),
+    Paper,
+    /// A run that stopped early, in the legend.
+    Hollow,
+}
+
+/// Draws `m` at `at` on `area`; `filled` false draws a hollow one (a run that stopped early).
+fn draw_marker<DB: DrawingBackend, CT: plotters::coord::CoordTranslate>(
+    area: &DrawingArea<DB, CT>,
+    at: CT::From,
+    m: Marker,
+    filled: bool,
+) -> DrawResult
+where
+    DB::ErrorType: 'static,
+    CT::From: Clone,
+{
+    let fill = |c: RGBColor| {
+        if filled {
+            c.filled()
+        } else {
+            c.stroke_width(2)
+        }
+    };
+    match m {
+        Marker::Point(PointKind::Default) => {
+            let d = vec![(0, -10), (10, 0), (0, 10), (-10, 0)];
+            let mut outline = d.clone();
+            outline.push(d[0]);
+            area.draw(
+                &(EmptyElement::at(at)
+                    + Polygon::new(d, fill(COLORS[0]))
+                    + PathElement::new(outline, BLACK.stroke_width(2))),
+            )?;
+        }
+        Marker::Point(PointKind::Mesh) => {
+            area.draw(&(EmptyElement::at(at) + Circle::new((0, 0), 6, fill(COLORS[0]))))?;
+        }
+        Marker::Point(PointKind::Setting) => {
+            area.draw(&(EmptyElement::at(at) + Circle::new((0, 0), 6, fill(COLORS[3]))))?;
+        }
+        Marker::Point(PointKind::Naive) => {
+            area.draw(
+                &(EmptyElement::at(at) + Rectangle::new([(-6, -6), (6, 6)], fill(COLORS[1]))),
+            )?;
+        }
+        Marker::Hollow => {
+            area.draw(&(EmptyElement::at(at) + Circle::new((0, 0), 6, PAPER.stroke_width(2))))?;
+        }
+        Marker::Paper => {
+            area.draw(&(EmptyElement::at(at) + Cross::new((0, 0), 7, BLACK.stroke_width(2))))?;
+        }
+    }
+    Ok(())
+}
+
+/// The legend of speed against error: one row (wrapped when too long) of markers and texts.
+fn legend_row<DB: DrawingBackend>(
+    area: &DrawingArea<DB, Shift>,
+    entries: &[(Option<(Marker, bool)>, String)],
+) -> DrawResult
+where
+    DB::ErrorType: 'static,
+{
+    let font = text_style(14);
+    let (w, _) = area.dim_in_pixel();
+    let (mut x, mut y) = (70i32, 14i32);
+    for (marker, text) in entries {
+        let (tw, _) = area.estimate_text_size(text, &font)?;
+        let need = 26 + tw as i32 + 28;
+        if x + need > w as i32 - 20 {
+            x = 70;
+            y += 24;
+        }
+        match marker {
+            Some((m, filled)) => draw_marker(area, (x + 8, y), *m, *filled)?,
+            None => {
+                area.draw(&DashedPathElement::new(
+                    vec![(x - 4, y), (x + 20, y)],
+                    6,
+                    4,
+                    PAPER.stroke_width(2),
+                ))?;
+            }
+        }
+        area.draw(&Text::new(
+            text.clone(),
+            (x + 26, y),
+            font.pos(Pos::new(HPos::Left, VPos::Center)),
+        ))?;
+        x += need;
+    }
+    Ok(())
+}
+
 /// Speed against error: CPU time per step summed over threads (a background thread is not
-/// free) against e_mean, every run, coloured by group; the paper's wall time per step beside.
+/// free) against e_mean, every run a labelled point, the paper's figures as labelled
+/// references. Top: the simple and the complex path with the paper's points; below, the
+/// complex path's runs enlarged (they lie close together, far from the paper's).
 fn speed_vs_error<DB: DrawingBackend>(
     root: &DrawingArea<DB, Shift>,
-    runs: &[ReportRun],
+    facts: &[RunFacts],
 ) -> DrawResult
 where
     DB::ErrorType: 'static,
 {
     root.fill(&WHITE)?;
-    let pts: Vec<(&ReportRun, f64, f64)> =
-        runs.iter()
-            .filter_map(|r| {
-                let s = r.summary.as_ref()?;
-                (s.e_mean_mm.is_finite() && s.e_mean_mm > 0.0 && s.cpu_ms_per_step > 0.0)
-                    .then_some((r, s.e_mean_mm, s.cpu_ms_per_step))
-            })
-            .collect();
-    let (xlo, xhi) = pts
-        .iter()
-        .map(|p| p.1)
-        .chain(PAPER_COMPLEX_E_MEAN.iter().map(|p| p.1))
-        .fold((f64::INFINITY, 0.0f64), |(a, b), x| (a.min(x), b.max(x)));
-    let ymax = pts
-        .iter()
-        .map(|p| p.2)
-        .chain(PAPER_TIME_PER_STEP.iter().map(|p| p.1))
-        .fold(0.0, f64::max);
-    let (xlo, xhi) = if xlo.is_finite() && xhi > xlo {
-        (xlo, xhi)
-    } else {
-        (0.1, 10.0)
-    };
-    let mut builder = ChartBuilder::on(root);
-    builder
-        .caption(
-            "Speed against error: CPU time per step (all threads) against e_mean, every run",
-            ("sans-serif", 22),
-        )
-        .margin(15)
-        .x_label_area_size(45)
-        .y_label_area_size(60);
-    // Log scale only when the errors span more than two decades (a naive run that
-    // drifts far away); its tick labels are sparse, so the x label says so.
-    if xhi / xlo > 100.0 {
-        let mut chart =
-            builder.build_cartesian_2d((xlo * 0.7..xhi * 1.4).log_scale(), 0.0..ymax * 1.15)?;
-        chart
-            .configure_mesh()
-            .x_desc("e_mean [mm] (log scale)")
-            .y_desc("CPU time per step, all threads [ms]")
-            .x_labels(8)
-            .x_label_formatter(&|x| format!("{x:.2}"))
-            .label_style(("sans-serif", 14))
-            .axis_desc_style(("sans-serif", 15))
-            .draw()?;
-        speed_series(&mut chart, &pts)
-    } else {
-        let pad = 0.08 * (xhi - xlo);
-        let mut chart =
-            builder.build_cartesian_2d((xlo - pad).max(0.0)..xhi + pad, 0.0..ymax * 1.15)?;
-        chart
-            .configure_mesh()
-            .x_desc("e_mean [mm]")
-            .y_desc("CPU time per step, all threads [ms]")
-            .label_style(("sans-serif", 14))
-            .axis_desc_style(("sans-serif", 15))
-            .draw()?;
-        speed_series(&mut chart, &pts)
+    let (title, rest) = root.split_vertically(40);
+    title.titled(
+        "Speed against error: every run of the report, CPU time per step against e_mean",
+        ("sans-serif", 22),
+    )?;
+    let (legend_area, body) = rest.split_vertically(56);
+    let defaults = default_settings(facts).map_or_else(
+        || "the scene as shipped".into(),
+        |d| format!("default: {d}"),
+    );
+    let mut entries = vec![
+        (
+            Some((Marker::Point(PointKind::Default), true)),
+            format!("the controller's run ({defaults})"),
+        ),
+        (
+            Some((Marker::Point(PointKind::Mesh), true)),
+            "default settings, another mesh".into(),
+        ),
+        (
+            Some((Marker::Point(PointKind::Setting), true)),
+            "one setting changed (as labelled)".into(),
+        ),
+        (
+            Some((Marker::Point(PointKind::Naive), true)),
+            "naive baseline (rigid IK replayed)".into(),
+        ),
+        (
+            Some((Marker::Paper, true)),
+            "the paper (wall time per step; SOFA, compliance on a GPU)".into(),
+        ),
+        (None, "the paper's e_mean".into()),
+    ];
+    if facts.iter().any(|f| f.started && !f.completed) {
+        entries.push((
+            Some((Marker::Hollow, false)),
+            "hollow: the run stopped early".into(),
+        ));
     }
+    legend_row(&legend_area, &entries)?;
+    let (top, bottom) = body.split_vertically(body.dim_in_pixel().1 / 2);
+    let panels = top.split_evenly((1, 2));
+    let complex = speed_points(facts, "complex");
+    // The enlarged window: the complex runs with a margin.
+    let window = enclosing(complex.iter().map(|p| (p.cpu_ms, p.e_mean_mm)));
+    speed_panel(
+        root,
+        &panels[0],
+        facts,
+        &Panel {
+            scene: "simple",
+            title: "simple path".into(),
+            window: None,
+            label_all: true,
+            mark: None,
+        },
+    )?;
+    speed_panel(
+        root,
+        &panels[1],
+        facts,
+        &Panel {
+            scene: "complex",
+            title: "complex path (the box: enlarged below)".into(),
+            window: None,
+            label_all: false,
+            mark: window.clone(),
+        },
+    )?;
+    speed_panel(
+        root,
+        &bottom,
+        facts,
+        &Panel {
+            scene: "complex",
+            title: "complex path, this project's runs enlarged".into(),
+            window,
+            label_all: true,
+            mark: None,
+        },
+    )
 }
 
-/// A series of [`speed_vs_error`]: (legend, colour index, simple scene, points (e_mean, time,
-/// completed)).
-type Series = (String, usize, bool, Vec<(f64, f64, bool)>);
-
-/// One series per (group, controller, scene) so that every marker has a legend entry: the
-/// colour says the group (the controllers group splits into inverse and naive), the shape the
-/// scene (circle: complex, triangle: simple); a hollow marker is a run that did not complete.
-fn speed_groups(pts: &[(&ReportRun, f64, f64)]) -> Vec<Series> {
-    let mut series: Vec<Series> = Vec::new();
-    for (r, x, y) in pts {
-        for m in &r.memberships {
-            let (name, colour) = match (m.group, r.controller) {
-                // After every group's colour.
-                (Group::Controllers, ControllerKind::Naive) => {
-                    ("controllers (naive)".to_owned(), Group::ALL.len())
-                }
-                (Group::Controllers, ControllerKind::Inverse) => {
-                    ("controllers (inverse)".to_owned(), 0)
-                }
-                (g, _) => (
-                    g.name().to_owned(),
-                    Group::ALL.iter().position(|a| *a == g).unwrap_or(0),
-                ),
-            };
-            let key = format!("{name}, {}", r.scene);
-            let done = r.completed();
-            match series.iter_mut().find(|s| s.0 == key) {
-                Some(s) => s.3.push((*x, *y, done)),
-                None => series.push((key, colour, r.scene == "simple", vec![(*x, *y, done)])),
-            }
-        }
+/// The ranges around `pts` with a margin (none without points).
+fn enclosing(pts: impl Iterator<Item = (f64, f64)>) -> Option<(Range<f64>, Range<f64>)> {
+    let (mut x0, mut x1, mut y0, mut y1) = (f64::INFINITY, 0.0f64, f64::INFINITY, 0.0f64);
+    for (x, y) in pts {
+        (x0, x1, y0, y1) = (x0.min(x), x1.max(x), y0.min(y), y1.max(y));
     }
-    series.sort_by_key(|s| (s.1, s.2));
-    series
+    if !(x0.is_finite() && y0.is_finite()) {
+        return None;
+    }
+    let (dx, dy) = ((x1 - x0).max(0.5), (y1 - y0).max(0.05));
+    Some((
+        (x0 - 0.12 * dx).max(0.0)..x1 + 0.12 * dx,
+        (y0 - 0.12 * dy).max(0.0)..y1 + 0.12 * dy,
+    ))
 }
 
-/// Points of [`speed_vs_error`] and the paper's, on either x scale.
-fn speed_series<'a, DB: DrawingBackend + 'a, X>(
-    chart: &mut ChartContext<'a, DB, Cartesian2d<X, plotters::coord::types::RangedCoordf64>>,
-    pts: &[(&ReportRun, f64, f64)],
+/// What one panel of [`speed_vs_error`] shows.
+struct Panel {
+    scene: &'static str,
+    title: String,
+    /// The ranges shown (none: from 0 to past every point and the paper's).
+    window: Option<(Range<f64>, Range<f64>)>,
+    /// Whether every point is labelled (else the controller's, the naive and the paper's).
+    label_all: bool,
+    /// A window to outline (the one enlarged in another panel).
+    mark: Option<(Range<f64>, Range<f64>)>,
+}
+
+/// One panel of [`speed_vs_error`]; the labels are drawn on `root` in pixels.
+fn speed_panel<DB: DrawingBackend>(
+    root: &DrawingArea<DB, Shift>,
+    area: &DrawingArea<DB, Shift>,
+    facts: &[RunFacts],
+    panel: &Panel,
 ) -> DrawResult
 where
     DB::ErrorType: 'static,
-    X: Ranged<ValueType = f64>,
 {
-    for (name, colour, simple, p) in &speed_groups(pts) {
-        let color = COLORS[colour % COLORS.len()];
-        let style = move |done: bool| {
-            if done {
-                color.filled()
-            } else {
-                color.stroke_width(2)
-            }
-        };
-        if *simple {
-            chart
-                .draw_series(
-                    p.iter()
-                        .map(move |&(x, y, done)| TriangleMarker::new((x, y), 7, style(done))),
-                )?
-                .label(name.clone())
-                .legend(move |(x, y)| TriangleMarker::new((x + 7, y), 6, color.filled()));
-        } else {
-            chart
-                .draw_series(
-                    p.iter()
-                        .map(move |&(x, y, done)| Circle::new((x, y), 6, style(done))),
-                )?
-                .label(name.clone())
-                .legend(move |(x, y)| Circle::new((x + 7, y), 5, color.filled()));
+    let scene = panel.scene;
+    let pts = speed_points(facts, scene);
+    let paper = paper_points(scene);
+    let (xr, yr) = panel.window.clone().unwrap_or_else(|| {
+        let xmax = pts
+            .iter()
+            .map(|p| p.cpu_ms)
+            .chain(paper.iter().map(|p| p.ms))
+            .fold(0.0, f64::max);
+        let ymax = pts
+            .iter()
+            .map(|p| p.e_mean_mm)
+            .chain(paper.iter().map(|p| p.e_mean_mm))
+            .fold(0.0, f64::max);
+        (0.0..nice_max(xmax) * 1.05, 0.0..nice_max(ymax) * 1.08)
+    });
+    let inside = |x: f64, y: f64| xr.contains(&x) && yr.contains(&y);
+    let mut chart = ChartBuilder::on(area)
+        .caption(&panel.title, ("sans-serif", 18))
+        .margin(14)
+        .x_label_area_size(48)
+        .y_label_area_size(60)
+        .build_cartesian_2d(xr.clone(), yr.clone())?;
+    chart
+        .configure_mesh()
+        .x_desc("CPU time per step, all threads [ms] (the paper: wall time)")
+        .y_desc("e_mean [mm]")
+        .x_label_formatter(&|x| measure_tick(*x))
+        .y_label_formatter(&|y| measure_tick(*y))
+        .light_line_style(BLACK.mix(0.04))
+        .label_style(("sans-serif", 14))
+        .axis_desc_style(("sans-serif", 15))
+        .draw()?;
+    let mut reserved = Vec::new();
+    if let Some((m, _)) = data::paper_bounds(scene).filter(|(m, _)| yr.contains(m)) {
+        let label = format!("the paper's e_mean, {scene}: {} mm", measure_tick(m));
+        reserved.push(reference_line(&mut chart, m, &label, true)?);
+        // Keep the point labels off the line itself.
+        let (_, py) = chart.backend_coord(&(xr.start, m));
+        let (px0, _) = chart.backend_coord(&(xr.start, m));
+        let (px1, _) = chart.backend_coord(&(xr.end, m));
+        reserved.push(Rect {
+            x0: px0,
+            y0: py - 3,
+            x1: px1,
+            y1: py + 4,
+        });
+    }
+    if let Some((mx, my)) = &panel.mark {
+        chart.draw_series(std::iter::once(Rectangle::new(
+            [(mx.start, my.start), (mx.end, my.end)],
+            PAPER.stroke_width(1),
+        )))?;
+    }
+    let plot = chart.plotting_area();
+    // Markers, the controller's own run last (on top).
+    let paper: Vec<_> = paper
+        .into_iter()
+        .filter(|p| inside(p.ms, p.e_mean_mm))
+        .collect();
+    let pts: Vec<_> = pts
+        .into_iter()
+        .filter(|p| inside(p.cpu_ms, p.e_mean_mm))
+        .collect();
+    for p in &paper {
+        draw_marker(plot, (p.ms, p.e_mean_mm), Marker::Paper, true)?;
+    }
+    for p in &pts {
+        draw_marker(
+            plot,
+            (p.cpu_ms, p.e_mean_mm),
+            Marker::Point(p.kind),
+            p.completed,
+        )?;
+    }
+    // Labels: the controller's run first (the best place), then the paper's, then the rest.
+    let mut labelled: Vec<((f64, f64), String, bool)> = Vec::new();
+    for p in pts.iter().rev().filter(|p| p.kind == PointKind::Default) {
+        labelled.push(((p.cpu_ms, p.e_mean_mm), p.label.clone(), true));
+    }
+    for p in &paper {
+        labelled.push(((p.ms, p.e_mean_mm), p.label.clone(), false));
+    }
+    for p in pts.iter().filter(|p| p.kind != PointKind::Default) {
+        if panel.label_all || p.kind == PointKind::Naive {
+            labelled.push(((p.cpu_ms, p.e_mean_mm), p.label.clone(), false));
         }
     }
-    chart
-        .draw_series(
-            PAPER_COMPLEX_E_MEAN.iter().filter_map(|&(n, e)| {
-                Some(Cross::new((e, paper_time(n)?), 8, BLACK.stroke_width(2)))
-            }),
-        )?
-        .label("the paper, complex path (600 / 1500 / 1800 nodes)")
-        .legend(|(x, y)| Cross::new((x + 7, y), 5, BLACK.stroke_width(2)));
-    legend(chart, 14, SeriesLabelPosition::UpperRight)?;
+    // Markers without a label still keep labels off them.
+    let unlabelled: Vec<(i32, i32)> = pts
+        .iter()
+        .filter(|p| !(panel.label_all || matches!(p.kind, PointKind::Default | PointKind::Naive)))
+        .map(|p| chart.backend_coord(&(p.cpu_ms, p.e_mean_mm)))
+        .collect();
+    reserved.extend(unlabelled.iter().map(|&a| Rect::around(a, 9)));
+    if let Some((mx, my)) = &panel.mark {
+        let (x0, y1) = chart.backend_coord(&(mx.start, my.start));
+        let (x1, y0) = chart.backend_coord(&(mx.end, my.end));
+        reserved.push(Rect { x0, y0, x1, y1 });
+    }
+    let font = text_style(13).color(&LABEL);
+    let bold = TextStyle::from(("sans-serif", 13).into_font().style(FontStyle::Bold)).color(&LABEL);
+    let anchors: Vec<(i32, i32)> = labelled.iter().map(|l| chart.backend_coord(&l.0)).collect();
+    let sizes = labelled
+        .iter()
+        .map(|(_, t, b)| root.estimate_text_size(t, if *b { &bold } else { &font }))
+        .collect::<Result<Vec<_>, _>>()?;
+    let (px, py) = chart.plotting_area().get_pixel_range();
+    let bounds = Rect {
+        x0: px.start + 2,
+        y0: py.start + 2,
+        x1: px.end - 2,
+        y1: py.end - 2,
+    };
+    let placed = place_labels(&anchors, &sizes, 9, &reserved, bounds);
+    for ((a, (_, text, b)), p) in anchors.iter().zip(&labelled).zip(&placed) {
+        if p.leader {
+            let end = p.rect.nearest(*a);
+            root.draw(&PathElement::new(
+                vec![*a, end],
+                LABEL.mix(0.6).stroke_width(1),
+            ))?;
+        }
+        root.draw(&Text::new(
+            text.clone(),
+            (p.rect.x0, p.rect.y0),
+            if *b { &bold } else { &font },
+        ))?;
+    }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::Group;
+    use super::*;
+
+    /// Redraws the charts of a report folder from its `report.json` and `error_vs_depth.csv`
+    /// (`NEEDLE_REPORT_DIR`) into `NEEDLE_CHARTS_OUT` (default: the same folder), without
+    /// running anything: `NEEDLE_REPORT_DIR=report cargo test -p needle-host --lib
+    /// redraw_charts -- --ignored`.
+    #[test]
+    #[ignore = "needs a report folder: NEEDLE_REPORT_DIR"]
+    fn redraw_charts_of_a_report_folder() {
+        let dir = PathBuf::from(std::env::var("NEEDLE_REPORT_DIR").expect("NEEDLE_REPORT_DIR"));
+        let out = std::env::var("NEEDLE_CHARTS_OUT").map_or(dir.clone(), PathBuf::from);
+        let json: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(dir.join("report.json")).unwrap())
+                .unwrap();
+        let mut facts: Vec<RunFacts> = json["runs"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(facts_of_json)
+            .collect();
+        let mut csv = ::csv::Reader::from_path(dir.join("error_vs_depth.csv")).unwrap();
+        for rec in csv.records() {
+            let rec = rec.unwrap();
+            let run: usize = rec[0].parse().unwrap();
+            facts[run]
+                .error_by_depth
+                .push((rec[4].parse().unwrap(), rec[5].parse().unwrap()));
+        }
+        std::fs::create_dir_all(&out).unwrap();
+        for f in write_charts_of(&out, &facts).unwrap() {
+            println!("{}", f.display());
+        }
+    }
+
+    fn facts_of_json(r: &serde_json::Value) -> RunFacts {
+        let num = |v: &serde_json::Value| v.as_f64().unwrap_or(f64::NAN);
+        let s = &r["summary"];
+        let t = &s["timing"];
+        RunFacts {
+            scene: r["scene"].as_str().unwrap().into(),
+            naive: r["controller"] == "naive",
+            nodes: s["gel_nodes"]
+                .as_u64()
+                .or(r["nodes_target"].as_u64())
+                .unwrap_or(0) as usize,
+            nodes_target: r["nodes_target"].as_u64().unwrap_or(0) as usize,
+            groups: r["memberships"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .filter_map(|m| Group::ALL.into_iter().find(|g| m["group"] == g.name()))
+                .collect(),
+            delta_q: num(&r["delta_q"]),
+            blend_distance_mm: num(&r["blend_distance_mm"]),
+            constraint_spacing_mm: num(&r["constraint_spacing_mm"]),
+            overrides: r["overrides"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .map(|o| (o[0].as_str().unwrap().into(), o[1].as_str().unwrap().into()))
+                .collect(),
+            started: s.is_object(),
+            completed: s["completed"].as_bool().unwrap_or(false),
+            steps: s["steps"].as_u64().unwrap_or(0) as usize,
+            e_mean_mm: num(&s["e_mean_mm"]),
+            e_max_mm: num(&s["e_max_mm"]),
+            cpu_ms_per_step: num(&s["cpu_ms_per_step"]),
+            stage_mean_ms: ["fm", "cd", "cc", "sc", "correction"].map(|k| num(&t[k]["mean_ms"])),
+            step_mean_ms: num(&t["total"]["mean_ms"]),
+            error_by_depth: Vec::new(),
+        }
+    }
 }

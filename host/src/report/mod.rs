@@ -1,5 +1,5 @@
 //! The benchmark report (`needle report`): both benchmark scenes under both controllers plus the
-//! parameter sweeps of `shared/BENCHMARK.md`, written into one folder.
+//! parameter sweeps of `docs/benchmark.md`, written into one folder.
 //!
 //! | group | runs |
 //! |---|---|
@@ -16,8 +16,10 @@
 //! `runs.csv` (one row per run), `error_vs_depth.csv` (every run's error at every step inside the
 //! gel), `report.json` (everything above as JSON), and (with the default `charts` feature) three
 //! charts as SVG and PNG:
-//! `error_vs_depth` (the paper's Fig. 7), `stage_times` (Fig. 8: the stage split of a step per
-//! mesh size) and `speed_vs_error` (time per step against e_mean over every run).
+//! `error_vs_depth` (the paper's Fig. 7, with its e_mean and e_max as reference lines),
+//! `stage_times` (Fig. 8: the stage means of a step stacked per mesh size, adding up to the mean
+//! step, with the paper's time per step) and `speed_vs_error` (CPU time per step against e_mean,
+//! every run a point labelled with its mesh size and setting, the paper's figures beside).
 //!
 //! A run that breaks down (the naive baseline may) or cannot even start is reported as such, with
 //! the steps it ran; it never aborts the report. The charts draw their text with DejaVu Sans,
@@ -327,6 +329,10 @@ const PAPER_TIME_PER_STEP: [(usize, f64); 4] =
 /// 1500: the accuracy run).
 #[cfg_attr(not(feature = "charts"), allow(dead_code))]
 const PAPER_COMPLEX_E_MEAN: [(usize, f64); 3] = [(600, 3.2), (1500, 2.6), (1800, 1.0)];
+
+/// The paper's bounds per scene: (scene, e_mean, e_max) [mm].
+#[cfg_attr(not(feature = "charts"), allow(dead_code))]
+const PAPER_BOUNDS: [(&str, f64, f64); 2] = [("simple", 0.5, 1.8), ("complex", 2.6, 6.0)];
 
 /// The paper's time per step at `nodes` gel nodes, when it gives one [ms].
 fn paper_time(nodes: usize) -> Option<f64> {

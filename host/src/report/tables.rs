@@ -227,18 +227,22 @@ fn chart_list(md: &mut String) {
     let _ = writeln!(md, "## Charts\n");
     let _ = writeln!(
         md,
-        "- Tracking error against insertion depth, inverse and naive (the paper's Fig. 7): \
+        "- Tracking error against insertion depth, inverse and naive (the paper's Fig. 7), the \
+         paper's e_mean and e_max as dashed lines: \
          [`error_vs_depth.svg`](error_vs_depth.svg)\n\n  ![error against depth](error_vs_depth.png)\n"
     );
     let _ = writeln!(
         md,
-        "- Stage times per mesh size, stacked medians, with the paper's time per step (Fig. 8): \
+        "- Wall time per step per mesh size, the stage means stacked (they add up to the mean \
+         step), with the paper's time per step (Fig. 8): \
          [`stage_times.svg`](stage_times.svg)\n\n  ![stage times](stage_times.png)\n"
     );
     let _ = writeln!(
         md,
-        "- Time per step against e_mean over every run (speed against error), with the paper's \
-         complex-path points: [`speed_vs_error.svg`](speed_vs_error.svg)\n\n  ![speed against error](speed_vs_error.png)\n"
+        "- Speed against error: CPU time per step (all threads) against e_mean, every run a \
+         point labelled with its mesh size and setting, the paper's points and e_mean as \
+         references; the complex path's runs enlarged below: \
+         [`speed_vs_error.svg`](speed_vs_error.svg)\n\n  ![speed against error](speed_vs_error.png)\n"
     );
 }
 
