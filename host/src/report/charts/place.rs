@@ -51,6 +51,9 @@ impl Rect {
     }
 }
 
+/// The free margin kept around a label [px].
+const PAD: i32 = 3;
+
 /// A placed label: its box and whether it sits away from its point (a leader line is drawn).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(crate) struct Placed {
@@ -92,13 +95,15 @@ pub(crate) fn place_labels(
             ];
             for (x, y) in spots {
                 let rect = Rect::at(x, y, w, h);
+                // Labels keep a few pixels apart: two labels touching read as one.
+                let padded = Rect::at(x - PAD, y - PAD, w + 2 * PAD, h + 2 * PAD);
                 let cost = rect.outside(&bounds) * 1000
-                    + taken.iter().map(|t| rect.overlap(t) * 100).sum::<i64>()
+                    + taken.iter().map(|t| padded.overlap(t) * 100).sum::<i64>()
                     + markers
                         .iter()
                         .enumerate()
                         .filter(|(j, _)| *j != i)
-                        .map(|(_, m)| rect.overlap(m) * 100)
+                        .map(|(_, m)| padded.overlap(m) * 100)
                         .sum::<i64>()
                     + i64::from(ring) * 40;
                 let placed = Placed {
@@ -148,7 +153,14 @@ mod tests {
         for (i, a) in placed.iter().enumerate() {
             assert_eq!(a.rect.outside(&bounds), 0, "label {i} leaves the plot");
             for b in &placed[i + 1..] {
-                assert_eq!(a.rect.overlap(&b.rect), 0, "{a:?} covers {b:?}");
+                let r = a.rect;
+                let padded = Rect::at(
+                    r.x0 - PAD,
+                    r.y0 - PAD,
+                    r.x1 - r.x0 + 2 * PAD,
+                    r.y1 - r.y0 + 2 * PAD,
+                );
+                assert_eq!(padded.overlap(&b.rect), 0, "{a:?} touches {b:?}");
             }
         }
         // The lone point's label sits right beside it.
