@@ -738,14 +738,21 @@ mod tests {
     use super::*;
 
     /// Redraws the charts of a report folder from its `report.json` and `error_vs_depth.csv`
-    /// (`NEEDLE_REPORT_DIR`) into `NEEDLE_CHARTS_OUT` (default: the same folder), without
-    /// running anything: `NEEDLE_REPORT_DIR=report cargo test -p needle-host --lib
+    /// (`NEEDLE_REPORT_DIR`, default: the committed `report/`) into `NEEDLE_CHARTS_OUT`
+    /// (default: a temporary folder), without running anything:
+    /// `NEEDLE_REPORT_DIR=report NEEDLE_CHARTS_OUT=report cargo test -p needle-host --lib
     /// redraw_charts -- --ignored`.
     #[test]
-    #[ignore = "needs a report folder: NEEDLE_REPORT_DIR"]
+    #[ignore = "redraws the committed report's charts (release): run with --include-ignored"]
     fn redraw_charts_of_a_report_folder() {
-        let dir = PathBuf::from(std::env::var("NEEDLE_REPORT_DIR").expect("NEEDLE_REPORT_DIR"));
-        let out = std::env::var("NEEDLE_CHARTS_OUT").map_or(dir.clone(), PathBuf::from);
+        let dir = std::env::var("NEEDLE_REPORT_DIR").map_or_else(
+            |_| PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../report")),
+            PathBuf::from,
+        );
+        let out = std::env::var("NEEDLE_CHARTS_OUT").map_or_else(
+            |_| std::env::temp_dir().join(format!("needle-redraw-{}", std::process::id())),
+            PathBuf::from,
+        );
         let json: serde_json::Value =
             serde_json::from_str(&std::fs::read_to_string(dir.join("report.json")).unwrap())
                 .unwrap();
@@ -764,7 +771,20 @@ mod tests {
                 .push((rec[4].parse().unwrap(), rec[5].parse().unwrap()));
         }
         std::fs::create_dir_all(&out).unwrap();
-        for f in write_charts_of(&out, &facts).unwrap() {
+        let files = write_charts_of(&out, &facts).unwrap();
+        assert!(!files.is_empty());
+        for f in files {
+            let bytes = std::fs::read(&f).unwrap();
+            let png = f.extension().is_some_and(|e| e == "png");
+            assert!(
+                if png {
+                    bytes.starts_with(b"\x89PNG")
+                } else {
+                    bytes.starts_with(b"<svg")
+                },
+                "{} is not a chart",
+                f.display()
+            );
             println!("{}", f.display());
         }
     }
