@@ -922,6 +922,17 @@ SLOT_DESC = {name: desc for name, _, _, desc in SLOTS}
 
 
 def generate(seed, out, only=None):
+    # Gmsh slots need the gmsh module: refuse before writing anything rather than leave a
+    # partial set (the earlier slots written, the rest missing).
+    needs_gmsh = [n for n, _, scenario, _ in SLOTS if scenario.startswith("gmsh") and (not only or n in only)]
+    if needs_gmsh:
+        try:
+            import gmsh  # noqa: F401, PLC0415
+        except ImportError:
+            raise SystemExit(
+                f"gen_suite.py: the slots {', '.join(needs_gmsh)} need the gmsh Python module, which is "
+                "missing: pip install -r tools/requirements.txt (or --only the other slots); nothing written"
+            ) from None
     os.makedirs(out, exist_ok=True)
     rows = []
     for name, path_kind, scenario, desc in SLOTS:
