@@ -19,6 +19,7 @@ mod math;
 pub mod payload;
 pub mod qp;
 pub mod reduce;
+pub mod serial_chain;
 pub mod synthetic;
 pub mod zeroed;
 
@@ -30,6 +31,7 @@ pub use payload::{
     Command, ComplianceFrame, GroupKind, NCLEAR, NOBS, ObsIndex, RowGroup, SolverReport,
     StatusFlags, VERSION, ValidationError,
 };
+pub use serial_chain::{SerialChain, SerialJoint};
 #[cfg(feature = "alloc")]
 pub use zeroed::boxed_zeroed;
 pub use zeroed::{Zeroable, zeroed_in_place};
