@@ -36,7 +36,7 @@ use pyo3::create_exception;
 use pyo3::exceptions::{PyRuntimeError, PyTypeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyBool, PyDict, PyFloat, PyInt, PyList, PyString, PyTuple};
-use std::panic::{AssertUnwindSafe, catch_unwind, resume_unwind};
+use std::ops::ControlFlow;
 use std::path::PathBuf;
 use std::sync::Mutex;
 
@@ -737,9 +737,6 @@ impl RunResult {
     }
 }
 
-/// The payload a run unwinds with when the callback raised (see [`run`]).
-struct CallbackRaised;
-
 /// Runs a scene to the end, as `needle run` does, and returns a `RunResult`.
 ///
 /// `run(scene, overrides=None, *, callback=None, steps=None, controller="inverse", out=None,
@@ -799,35 +796,31 @@ fn run(
     };
     let mut raised: Option<PyErr> = None;
     // The step loop runs without the GIL; the callback takes it back for each step. When the
-    // callback raises, the run unwinds out of the host's loop right after that step (the loop
-    // has no other way to stop early), without the panic hook (`resume_unwind`), and the error
-    // is raised here. Any other panic goes on unwinding (pyo3 raises it as a PanicException).
-    let outcome = py.detach(|| {
-        catch_unwind(AssertUnwindSafe(|| {
-            needle_host::run::run(&scene, &opts, |r| {
-                let result = Python::attach(|py| {
-                    py.check_signals()?;
-                    match &callback {
-                        Some(cb) => cb.call1(py, (StepReport { r: r.clone() },)).map(drop),
-                        None => Ok(()),
-                    }
-                });
-                if let Err(e) = result {
-                    raised = Some(e);
-                    resume_unwind(Box::new(CallbackRaised));
+    // callback raises (or Ctrl-C arrives), the run stops right after that step through the
+    // host's own early stop (`run_until`: the files and the summary are written as for any end)
+    // and the error is raised here.
+    let result = py.detach(|| {
+        needle_host::run::run_until(&scene, &opts, |r| {
+            let result = Python::attach(|py| {
+                py.check_signals()?;
+                match &callback {
+                    Some(cb) => cb.call1(py, (StepReport { r: r.clone() },)).map(drop),
+                    None => Ok(()),
                 }
-            })
-        }))
+            });
+            match result {
+                Ok(()) => ControlFlow::Continue(()),
+                Err(e) => {
+                    raised = Some(e);
+                    ControlFlow::Break(())
+                }
+            }
+        })
     });
-    let result = match outcome {
-        Ok(r) => r.map_err(|e| run_error(&e))?,
-        Err(payload) if payload.is::<CallbackRaised>() => {
-            return Err(raised
-                .take()
-                .unwrap_or_else(|| PyRuntimeError::new_err("the callback raised")));
-        }
-        Err(payload) => resume_unwind(payload),
-    };
+    if let Some(e) = raised {
+        return Err(e);
+    }
+    let result = result.map_err(|e| run_error(&e))?;
     let json = serde_json::to_string(&result.summary)
         .map_err(|e| SimulationError::new_err(format!("summary: {e}")))?;
     let summary = py

@@ -74,6 +74,22 @@ def test_an_exception_in_the_callback_stops_the_run_and_propagates(controller):
     assert seen == list(range(6))
 
 
+def test_a_run_stopped_by_its_callback_still_writes_its_files(tmp_path):
+    def callback(report):
+        if report.step == 3:
+            raise Stop("enough")
+
+    with pytest.raises(Stop):
+        needle.run("simple", overrides=COARSE, callback=callback, out=tmp_path)
+    # The host's early stop: steps.csv has the four steps, summary.json says why it ended.
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["steps"] == 4
+    assert summary["stop_reason"]["kind"] == "interrupted"
+    assert summary["outcome"] == "missed_target"
+    assert len((tmp_path / "steps.csv").read_text().splitlines()) == 5
+    assert (tmp_path / "replay.html").exists()
+
+
 def test_a_callback_that_is_not_callable_raises():
     with pytest.raises(TypeError):
         needle.run("simple", overrides=COARSE, steps=2, callback=42)

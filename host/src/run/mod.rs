@@ -47,6 +47,7 @@ use outputs::{MetricsCsv, SummaryJson};
 use remote::Remote;
 use replay_out::ReplayRecorder;
 use serde::Serialize;
+use std::ops::ControlFlow;
 use std::path::PathBuf;
 use std::time::Duration;
 use summary::{Ending, Statistics};
@@ -301,6 +302,53 @@ pub fn run_setup(
     transport: &mut dyn Transport<ROWS>,
     mut observe: impl FnMut(&StepReport),
 ) -> Result<RunResult, RunError> {
+    run_setup_until(setup, opts, transport, |r| {
+        observe(r);
+        ControlFlow::Continue(())
+    })
+}
+
+/// [`run`] whose observer may stop the run: `observe` returns [`ControlFlow::Break`] after a
+/// step to end the run there ([`StopReason::Interrupted`]; the files and the summary are written
+/// as for any other end, the outcome judged from where the tip is).
+///
+/// # Errors
+/// [`RunError`] if the simulation cannot be set up or an output cannot be written.
+///
+/// # Example
+/// ```
+/// use needle_host::run::{RunOptions, StopReason, run_until};
+/// use needle_host::scene::Scene;
+/// use std::ops::ControlFlow;
+///
+/// let scene = Scene::builtin("simple").unwrap()
+///     .with_overrides(&[("gel.box.nodes".into(), "300".into())]).unwrap();
+/// let r = run_until(&scene, &RunOptions::default(), |r| {
+///     if r.step == 4 { ControlFlow::Break(()) } else { ControlFlow::Continue(()) }
+/// }).unwrap();
+/// assert_eq!(r.summary.steps, 5);
+/// assert!(matches!(r.summary.stop_reason, Some(StopReason::Interrupted)));
+/// ```
+pub fn run_until(
+    scene: &Scene,
+    opts: &RunOptions,
+    observe: impl FnMut(&StepReport) -> ControlFlow<()>,
+) -> Result<RunResult, RunError> {
+    let setup = Setup::build(scene)?;
+    let mut core = InProcess::<ROWS>::new(setup.robot, setup.inverse);
+    run_setup_until(setup, opts, &mut core, observe)
+}
+
+/// [`run_setup`] whose observer may stop the run ([`run_until`]).
+///
+/// # Errors
+/// [`RunError::Output`] if an output cannot be written.
+pub fn run_setup_until(
+    setup: Setup,
+    opts: &RunOptions,
+    transport: &mut dyn Transport<ROWS>,
+    mut observe: impl FnMut(&StepReport) -> ControlFlow<()>,
+) -> Result<RunResult, RunError> {
     let Setup {
         mut world,
         params,
@@ -349,9 +397,11 @@ pub fn run_setup(
             }
         };
         let outside = crate::cpu::thread_s();
-        let stop = books.step(&world, &r)?;
+        let mut stop = books.step(&world, &r)?;
         if !matches!(stop, Some(Stop::Before(_))) {
-            observe(&r);
+            if observe(&r).is_break() && stop.is_none() {
+                stop = Some(Stop::After(StopReason::Interrupted));
+            }
             reports.push(r);
         }
         bookkeeping += crate::cpu::thread_s() - outside;

@@ -270,9 +270,9 @@ impl Statistics {
             .iter()
             .copied()
             .fold(f64::INFINITY, f64::min);
-        // A blocked controller stopped on purpose: its run missed the target, it did not fail.
-        let failed = (end.stopped.as_ref())
-            .is_some_and(|(_, why)| !matches!(why, StopReason::Blocked { .. }));
+        // A run stopped on purpose (blocked, or by its caller) did not fail: its outcome is
+        // judged from where the tip is.
+        let failed = (end.stopped.as_ref()).is_some_and(|(_, why)| !why.is_deliberate());
         let outcome = Outcome::of(
             failed || reports.is_empty(),
             min_clearance_mm < 0.0,

@@ -94,9 +94,18 @@ pub enum StopReason {
         /// Their duration [s].
         seconds: f64,
     },
+    /// The caller's observer asked the run to stop ([`super::run_until`]; e.g. a Python
+    /// callback that raised).
+    Interrupted,
 }
 
 impl StopReason {
+    /// Whether the run ended on purpose (blocked, or stopped by its caller) rather than by a
+    /// failure: its outcome is then judged from where the tip is, not `diverged`.
+    pub fn is_deliberate(&self) -> bool {
+        matches!(self, Self::Blocked { .. } | Self::Interrupted)
+    }
+
     /// Whether the simulation diverged (as opposed to a failure of a solve, the transport or the
     /// baseline's IK).
     pub fn is_divergence(&self) -> bool {
@@ -155,6 +164,7 @@ impl fmt::Display for StopReason {
                 "blocked: for {seconds:.1} s ({steps} steps) an obstacle's clearance margin held \
                  the needle and the target stayed out of reach; stopped rather than push into it"
             ),
+            Self::Interrupted => write!(f, "stopped by the caller"),
         }
     }
 }
