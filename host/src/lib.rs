@@ -22,6 +22,7 @@ pub mod provenance;
 pub mod proximity;
 pub mod replay;
 pub mod report;
+pub mod robot;
 pub mod run;
 pub mod scene;
 pub mod setup;
