@@ -7,6 +7,9 @@
 //! `R = Rz(yaw) · Ry(pitch) · Rx(roll)`. The base link is the chain's world frame (identity base).
 //! Revolute and continuous joints are accepted; any other movable type is an error.
 
+// Units are written in brackets ([mm], [rad]) as in the workspace style: not intra-doc links.
+#![allow(rustdoc::broken_intra_doc_links)]
+
 use nalgebra::{Matrix3, Vector3};
 use needle_core::{JointLimit, Pose, SerialChain, SerialJoint};
 use std::collections::HashMap;
