@@ -205,7 +205,7 @@ impl Blocked {
         } else {
             self.run = 0;
         }
-        (self.run >= self.limit).then(|| StopReason::Blocked {
+        (self.run >= self.limit).then_some(StopReason::Blocked {
             steps: self.run,
             seconds: self.run as f64 * self.dt,
         })
