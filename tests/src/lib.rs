@@ -25,3 +25,23 @@ pub fn load_ref(name: &str) -> serde_json::Value {
         std::fs::read_to_string(&p).unwrap_or_else(|e| panic!("reading {}: {e}", p.display()));
     serde_json::from_str(&text).unwrap_or_else(|e| panic!("parsing {}: {e}", p.display()))
 }
+
+/// A JSON array of numbers (reference files).
+///
+/// # Panics
+/// When `v` is not an array of numbers: a malformed reference must fail the test.
+pub fn arr(v: &serde_json::Value) -> Vec<f64> {
+    v.as_array()
+        .expect("array")
+        .iter()
+        .map(|x| x.as_f64().expect("number"))
+        .collect()
+}
+
+/// A JSON array of arrays of numbers, row by row (reference files).
+///
+/// # Panics
+/// As [`arr`].
+pub fn mat(v: &serde_json::Value) -> Vec<Vec<f64>> {
+    v.as_array().expect("array").iter().map(arr).collect()
+}

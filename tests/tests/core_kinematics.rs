@@ -2,20 +2,8 @@
 //! central finite differences of its own forward kinematics.
 
 use needle_core::kinematics::{DhChain, Pose};
-use needle_tests::load_ref;
+use needle_tests::{arr, load_ref, mat};
 use serde_json::Value;
-
-fn arr(v: &Value) -> Vec<f64> {
-    v.as_array()
-        .expect("array")
-        .iter()
-        .map(|x| x.as_f64().expect("number"))
-        .collect()
-}
-
-fn mat(v: &Value) -> Vec<Vec<f64>> {
-    v.as_array().expect("array").iter().map(arr).collect()
-}
 
 fn q6(v: &Value) -> [f64; 6] {
     arr(v).try_into().expect("6 joints")

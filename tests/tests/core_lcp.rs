@@ -5,18 +5,10 @@
 use needle_core::boxed_zeroed;
 use needle_core::constraint::{BlockGs, GsParams};
 use needle_core::payload::RowGroup;
-use needle_tests::load_ref;
+use needle_tests::{arr, load_ref};
 use serde_json::Value;
 
 const M: usize = 150;
-
-fn arr(v: &Value) -> Vec<f64> {
-    v.as_array()
-        .expect("array")
-        .iter()
-        .map(|x| x.as_f64().expect("number"))
-        .collect()
-}
 
 struct Problem {
     n: usize,

@@ -4,18 +4,9 @@
 //! Clarabel agree with it to 1e-9 or better).
 
 use needle_core::qp::Qp;
-use needle_tests::load_ref;
-use serde_json::Value;
+use needle_tests::{arr, load_ref};
 
 const N: usize = 150;
-
-fn arr(v: &Value) -> Vec<f64> {
-    v.as_array()
-        .expect("array")
-        .iter()
-        .map(|x| x.as_f64().expect("number"))
-        .collect()
-}
 
 fn solve_all() {
     let r = load_ref("lcp_ref.json");

@@ -6,20 +6,7 @@
 use nalgebra::{Matrix3, SMatrix, Vector3};
 use needle_core::{Pose, SerialChain};
 use needle_host::robot::urdf::{UrdfReason, load_chain, load_robot, parse_robot};
-use needle_tests::{load_ref, ref_path};
-use serde_json::Value;
-
-fn arr(v: &Value) -> Vec<f64> {
-    v.as_array()
-        .expect("array")
-        .iter()
-        .map(|x| x.as_f64().expect("number"))
-        .collect()
-}
-
-fn mat(v: &Value) -> Vec<Vec<f64>> {
-    v.as_array().expect("array").iter().map(arr).collect()
-}
+use needle_tests::{arr, load_ref, mat, ref_path};
 
 /// Rotation vector (axis × angle) of a rotation matrix close to the identity.
 fn log_so3(r: &Matrix3<f64>) -> Vector3<f64> {
