@@ -11,7 +11,7 @@ use crate::error::{Body, SetupError};
 use crate::fem::Elasticity;
 use crate::fem::beam::BeamSection;
 use crate::fem::tetra::Kinematics;
-use crate::free_motion::{GelModel, GelParams, NeedleModel, NeedleParams};
+use crate::free_motion::{GelModel, GelParams, NeedleModel, NeedleParams, RegionMaterial};
 use crate::mesh::{TetMesh, box_mesh, read_gmsh};
 use crate::scene::{InsertionMode, Scene};
 use crate::step::{Insertion, Interaction, StepParams, TargetMotion};
@@ -155,6 +155,16 @@ pub fn gel_params(scene: &Scene) -> GelParams {
             poisson_ratio: scene.gel.poisson_ratio,
         },
         density: scene.gel.density,
+        regions: (scene.gel.regions.iter())
+            .map(|r| RegionMaterial {
+                tag: r.tag,
+                elasticity: Elasticity {
+                    young_modulus: r.young_modulus,
+                    poisson_ratio: r.poisson_ratio.unwrap_or(scene.gel.poisson_ratio),
+                },
+                density: r.density.unwrap_or(scene.gel.density),
+            })
+            .collect(),
         time_step: Some(scene.solver.time_step),
         kinematics: Kinematics::Corotational,
         refactor_every: scene.solver.refactor_every() as usize,
@@ -227,7 +237,36 @@ pub fn gel_mesh(scene: &Scene) -> Result<TetMesh, SetupError> {
     };
     mesh.validate().map_err(SetupError::Mesh)?;
     metres_hint(&mesh)?;
+    listed_regions_exist(scene, &mesh)?;
     Ok(mesh)
+}
+
+/// Every region `gel.regions` lists is a region of the mesh (a tag that matches no element is
+/// most likely a typo, and would leave the region it meant at the gel's default material).
+fn listed_regions_exist(scene: &Scene, mesh: &TetMesh) -> Result<(), SetupError> {
+    let present = mesh.region_tags();
+    for (i, r) in scene.gel.regions.iter().enumerate() {
+        if present.binary_search(&r.tag).is_ok() {
+            continue;
+        }
+        let file = match &scene.gel.mesh {
+            Some(path) => format!("mesh {}", path.display()),
+            None => "the generated box (one region, tag 0)".to_owned(),
+        };
+        let label = if r.name.is_empty() {
+            String::new()
+        } else {
+            format!(" (`{}`)", r.name)
+        };
+        return Err(SetupError::Plan {
+            field: format!("gel.regions[{i}].tag"),
+            reason: format!(
+                "region {}{label} is not in {file}, whose elements have region tags {present:?}",
+                r.tag
+            ),
+        });
+    }
+    Ok(())
 }
 
 /// A gel smaller than 2 mm across is refused with a hint: coordinates are read in mm, and such a

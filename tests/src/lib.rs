@@ -45,3 +45,15 @@ pub fn arr(v: &serde_json::Value) -> Vec<f64> {
 pub fn mat(v: &serde_json::Value) -> Vec<Vec<f64>> {
     v.as_array().expect("array").iter().map(arr).collect()
 }
+
+/// The largest entry-wise difference of `a` from the reference `b`, relative to the largest
+/// entry of `b` (the displacement error of the FE reference tests).
+pub fn max_rel_err(a: &[f64], b: &[f64]) -> f64 {
+    let num = a
+        .iter()
+        .zip(b)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f64::max);
+    let den = b.iter().map(|y| y.abs()).fold(0.0, f64::max);
+    num / den
+}

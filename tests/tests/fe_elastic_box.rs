@@ -7,7 +7,7 @@ use needle_host::fem::Elasticity;
 use needle_host::fem::tetra::Kinematics;
 use needle_host::free_motion::{GelModel, GelParams};
 use needle_host::mesh::TetMesh;
-use needle_tests::load_ref;
+use needle_tests::{load_ref, max_rel_err as rel_err};
 use serde_json::Value;
 
 const CASES: [&str; 4] = [
@@ -101,16 +101,6 @@ fn solve_case(
         })
         .collect();
     (u, model)
-}
-
-fn rel_err(a: &[f64], b: &[f64]) -> f64 {
-    let num = a
-        .iter()
-        .zip(b)
-        .map(|(x, y)| (x - y).abs())
-        .fold(0.0, f64::max);
-    let den = b.iter().map(|y| y.abs()).fold(0.0, f64::max);
-    num / den
 }
 
 fn check_linear(name: &str) {

@@ -410,7 +410,7 @@ fn background_factorisation_solves_with_the_pipelines_matrix() {
         let bg_params = GelParams {
             background_factorization: true,
             refactor_every: every,
-            ..params
+            ..params.clone()
         };
         let mut bg = GelModel::try_new(mesh.clone(), &bottom, &bg_params).unwrap();
         let mut sync = GelModel::try_new(mesh.clone(), &bottom, &params).unwrap();
@@ -509,7 +509,7 @@ fn background_factorisation_factorises_at_once_when_elements_rotate_far() {
             &GelParams {
                 background_factorization: true,
                 refactor_every: every,
-                ..params
+                ..params.clone()
             },
         )
         .unwrap();

@@ -202,8 +202,8 @@ pub struct ElementState {
 #[derive(Clone, Debug)]
 pub struct CorotationalTetra {
     kinematics: Kinematics,
-    lambda: f64,
-    mu: f64,
+    /// Lamé constants `[λ, μ]` of each element [MPa] (one material per region of the mesh).
+    lame: Vec<[f64; 2]>,
     tets: Vec<[usize; 4]>,
     /// Inverse rest edge matrix `D_m⁻¹` [1/mm].
     dm_inv: Vec<Matrix3<f64>>,
@@ -217,7 +217,7 @@ pub struct CorotationalTetra {
 
 impl CorotationalTetra {
     /// Precomputes the rest data (`D_m⁻¹`, `V`, shape gradients) of every element of `mesh`
-    /// (its node positions are the rest configuration).
+    /// (its node positions are the rest configuration), all of one material.
     ///
     /// # Errors
     /// [`FemError::Material`] for invalid elastic constants, [`FemError::Mesh`] if the mesh is invalid.
@@ -226,9 +226,34 @@ impl CorotationalTetra {
         material: &Elasticity,
         kinematics: Kinematics,
     ) -> Result<Self, FemError> {
-        material.validate()?;
+        Self::try_new_per_element(mesh, &vec![*material; mesh.tets.len()], kinematics)
+    }
+
+    /// As [`CorotationalTetra::try_new`] with element `e` of material `materials[e]` (e.g. the
+    /// material of its region).
+    ///
+    /// # Errors
+    /// As [`CorotationalTetra::try_new`]; [`FemError::DimensionMismatch`] unless there is one
+    /// material per element.
+    pub fn try_new_per_element(
+        mesh: &TetMesh,
+        materials: &[Elasticity],
+        kinematics: Kinematics,
+    ) -> Result<Self, FemError> {
         mesh.validate().map_err(FemError::Mesh)?;
-        let (lambda, mu) = material.lame();
+        if materials.len() != mesh.tets.len() {
+            return Err(FemError::DimensionMismatch {
+                what: "element materials",
+                expected: mesh.tets.len(),
+                got: materials.len(),
+            });
+        }
+        let mut lame = Vec::with_capacity(materials.len());
+        for material in materials {
+            material.validate()?;
+            let (lambda, mu) = material.lame();
+            lame.push([lambda, mu]);
+        }
         let m = mesh.tets.len();
         let mut dm_inv = Vec::with_capacity(m);
         let mut volumes = Vec::with_capacity(m);
@@ -255,8 +280,7 @@ impl CorotationalTetra {
         }
         Ok(Self {
             kinematics,
-            lambda,
-            mu,
+            lame,
             tets: mesh.tets.clone(),
             dm_inv,
             volumes,
@@ -305,12 +329,13 @@ impl CorotationalTetra {
         self.full_matrix(e, &self.rotations[e])
     }
 
-    /// Block `(a, b)` of `R K0 Rᵀ` from the rotated gradients `h`.
+    /// Block `(a, b)` of `R K0 Rᵀ` of an element of volume `vol` and Lamé constants `lame`,
+    /// from the rotated gradients `h`.
     #[inline(always)]
-    fn block(&self, vol: f64, h: &[Vector3<f64>; 4], a: usize, b: usize) -> Matrix3<f64> {
+    fn block(vol: f64, lame: [f64; 2], h: &[Vector3<f64>; 4], a: usize, b: usize) -> Matrix3<f64> {
         let (ha, hb) = (&h[a], &h[b]);
-        let l = vol * self.lambda;
-        let m = vol * self.mu;
+        let l = vol * lame[0];
+        let m = vol * lame[1];
         let d = m * ha.dot(hb);
         Matrix3::from_fn(|i, j| {
             l * ha[i] * hb[j] + m * hb[i] * ha[j] + if i == j { d } else { 0.0 }
@@ -321,7 +346,7 @@ impl CorotationalTetra {
         let h = self.grads[e].map(|g| r * g);
         let mut k = SMatrix::<f64, 12, 12>::zeros();
         for &(a, b) in BLOCK_PAIRS.iter() {
-            let blk = self.block(self.volumes[e], &h, a, b);
+            let blk = Self::block(self.volumes[e], self.lame[e], &h, a, b);
             k.fixed_view_mut::<3, 3>(3 * a, 3 * b).copy_from(&blk);
             if a != b {
                 k.fixed_view_mut::<3, 3>(3 * b, 3 * a)
@@ -371,7 +396,7 @@ impl CorotationalTetra {
             Kinematics::Corotational => rotation_from_deformation(&f),
             Kinematics::Linear => Matrix3::identity(),
         };
-        let (strain, stress) = self.strain_stress(&r, &f);
+        let (strain, stress) = self.strain_stress(e, &r, &f);
         let dev = stress - Matrix3::identity() * (stress.trace() / 3.0);
         ElementState {
             strain,
@@ -396,17 +421,24 @@ impl CorotationalTetra {
     pub fn element_internal_force(&self, e: usize, x: &[Vector3<f64>]) -> [Vector3<f64>; 4] {
         let r = &self.rotations[e];
         let f = self.deformation_gradient(e, x);
-        let (_, sigma) = self.strain_stress(r, &f);
+        let (_, sigma) = self.strain_stress(e, r, &f);
         let p = (r * sigma) * self.volumes[e];
         self.grads[e].map(|g| p * g)
     }
 
-    /// The corotated strain `ε = sym(Rᵀ F − I)` and the linear stress `σ = λ tr(ε) I + 2μ ε` [MPa].
+    /// The corotated strain `ε = sym(Rᵀ F − I)` and the linear stress `σ = λ tr(ε) I + 2μ ε`
+    /// [MPa] of element `e`.
     #[inline(always)]
-    fn strain_stress(&self, r: &Matrix3<f64>, f: &Matrix3<f64>) -> (Matrix3<f64>, Matrix3<f64>) {
+    fn strain_stress(
+        &self,
+        e: usize,
+        r: &Matrix3<f64>,
+        f: &Matrix3<f64>,
+    ) -> (Matrix3<f64>, Matrix3<f64>) {
+        let [lambda, mu] = self.lame[e];
         let h = r.tr_mul(f) - Matrix3::identity();
         let eps = (h + h.transpose()) * 0.5;
-        let sigma = eps * (2.0 * self.mu) + Matrix3::identity() * (self.lambda * eps.trace());
+        let sigma = eps * (2.0 * mu) + Matrix3::identity() * (lambda * eps.trace());
         (eps, sigma)
     }
 
@@ -444,10 +476,11 @@ impl CorotationalTetra {
             let r = &self.rotations[e];
             let h = self.grads[e].map(|g| r * g);
             let vol = scale * self.volumes[e];
+            let lame = self.lame[e];
             let s = &slots[STIFFNESS_ENTRIES * e..STIFFNESS_ENTRIES * (e + 1)];
             let mut k = 0;
             for &(a, b) in BLOCK_PAIRS.iter() {
-                let blk = self.block(vol, &h, a, b);
+                let blk = Self::block(vol, lame, &h, a, b);
                 for i in 0..3 {
                     for j in 0..3 {
                         if a == b && j < i {
@@ -466,10 +499,21 @@ impl CorotationalTetra {
 
     /// Lumped nodal masses `ρ V / 4` summed per node [t] for density `density` [t/mm³].
     pub fn lumped_mass(&self, node_count: usize, density: f64) -> Vec<f64> {
+        self.lumped_mass_per_element(node_count, |_| density)
+    }
+
+    /// Lumped nodal masses `ρ_e V_e / 4` summed per node [t], element `e` of density
+    /// `density(e)` [t/mm³].
+    pub fn lumped_mass_per_element(
+        &self,
+        node_count: usize,
+        density: impl Fn(usize) -> f64,
+    ) -> Vec<f64> {
         let mut m = vec![0.0; node_count];
         for (e, t) in self.tets.iter().enumerate() {
+            let rho = density(e);
             for &n in t {
-                m[n] += density * self.volumes[e] / 4.0;
+                m[n] += rho * self.volumes[e] / 4.0;
             }
         }
         m

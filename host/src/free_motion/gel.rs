@@ -6,13 +6,27 @@ use crate::fem::{Elasticity, FemError};
 use crate::mesh::TetMesh;
 use nalgebra::{Matrix3, Vector3};
 
-/// Parameters of the gel model.
+/// The material of one region of the gel mesh ([`TetMesh::regions`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct GelParams {
+pub struct RegionMaterial {
+    /// The region's tag in the mesh (a Gmsh physical volume tag, a `.vtu` `region` value).
+    pub tag: i32,
     /// Elastic constants (E [MPa], ν).
     pub elasticity: Elasticity,
-    /// Density [t/mm³] (water-like gel: 1e-9); used only with a time step.
+    /// Density [t/mm³]; used only with a time step.
     pub density: f64,
+}
+
+/// Parameters of the gel model.
+#[derive(Clone, Debug, PartialEq)]
+pub struct GelParams {
+    /// Elastic constants (E [MPa], ν) of every element whose region `regions` does not list.
+    pub elasticity: Elasticity,
+    /// Density [t/mm³] (water-like gel: 1e-9) of the same elements; used only with a time step.
+    pub density: f64,
+    /// Materials of the listed regions (a tag the mesh does not use is allowed here: the scene
+    /// refuses it, naming the file).
+    pub regions: Vec<RegionMaterial>,
     /// Pseudo time step `h` [s] of the `M/h²` term; `None` for the static Newton step.
     pub time_step: Option<f64>,
     /// Corotational (the paper's model) or linear kinematics.
@@ -33,6 +47,7 @@ impl Default for GelParams {
                 poisson_ratio: 0.45,
             },
             density: 1e-9,
+            regions: Vec::new(),
             time_step: None,
             kinematics: Kinematics::Corotational,
             refactor_every: 1,
@@ -124,19 +139,26 @@ impl FeModel<Tets> {
         params: &GelParams,
         ordering: FillOrdering,
     ) -> Result<Self, FemError> {
-        let tetra = CorotationalTetra::try_new(&mesh, &params.elasticity, params.kinematics)?;
+        let region = |r: i32| params.regions.iter().find(|m| m.tag == r);
+        let materials: Vec<Elasticity> = (mesh.regions.iter())
+            .map(|&r| region(r).map_or(params.elasticity, |m| m.elasticity))
+            .collect();
+        let densities: Vec<f64> = (mesh.regions.iter())
+            .map(|&r| region(r).map_or(params.density, |m| m.density))
+            .collect();
+        let tetra = CorotationalTetra::try_new_per_element(&mesh, &materials, params.kinematics)?;
         let n = mesh.nodes.len();
         let regularization = match params.time_step {
             None => vec![0.0; 3 * n],
             Some(h) => {
                 if !(h > 0.0 && h.is_finite())
-                    || !(params.density >= 0.0 && params.density.is_finite())
+                    || !densities.iter().all(|d| *d >= 0.0 && d.is_finite())
                 {
                     return Err(FemError::Parameter {
                         what: "gel time step must be positive and density non-negative",
                     });
                 }
-                let m = tetra.lumped_mass(n, params.density);
+                let m = tetra.lumped_mass_per_element(n, |e| densities[e]);
                 (0..3 * n).map(|g| m[g / 3] / (h * h)).collect()
             }
         };

@@ -52,7 +52,7 @@ mod needle;
 mod system;
 
 pub use background::LAG_ROTATION_LIMIT;
-pub use gel::{FillOrdering, GelModel, GelParams, Tets};
+pub use gel::{FillOrdering, GelModel, GelParams, RegionMaterial, Tets};
 pub use needle::{Beams, NeedleModel, NeedleParams};
 
 use crate::fem::FemError;

@@ -176,5 +176,10 @@ pub fn box_mesh_with_divisions(min: Vector3<f64>, max: Vector3<f64>, div: BoxDiv
             }
         }
     }
-    TetMesh { nodes, tets }
+    let regions = vec![0; tets.len()];
+    TetMesh {
+        nodes,
+        tets,
+        regions,
+    }
 }

@@ -9,6 +9,7 @@
 
 mod generate;
 mod gmsh;
+mod gmsh2;
 mod validate;
 
 pub use generate::{BoxDivisions, box_divisions_for_target, box_mesh, box_mesh_with_divisions};
@@ -28,6 +29,10 @@ pub struct TetMesh {
     pub nodes: Vec<Vector3<f64>>,
     /// Elements as four 0-based node indices, positively oriented.
     pub tets: Vec<[usize; 4]>,
+    /// Region tag of each element (same length as `tets`): the Gmsh physical volume tag or the
+    /// `.vtu` / `.vtk` cell value `region`; 0 where the file gives none (and for generated boxes).
+    /// A scene maps tags to materials (`[[gel.regions]]`).
+    pub regions: Vec<i32>,
 }
 
 /// Node-to-element adjacency in compressed form: the elements around node `i` are
@@ -63,9 +68,34 @@ impl TetMesh {
     /// # Errors
     /// The first [`MeshError`] found, naming the element or node at fault.
     pub fn try_new(nodes: Vec<Vector3<f64>>, tets: Vec<[usize; 4]>) -> Result<Self, MeshError> {
-        let mesh = Self { nodes, tets };
+        let regions = vec![0; tets.len()];
+        Self::try_new_with_regions(nodes, tets, regions)
+    }
+
+    /// Builds a mesh whose element `e` lies in region `regions[e]`, and validates it.
+    ///
+    /// # Errors
+    /// The first [`MeshError`] found (among them [`MeshError::RegionCount`]).
+    pub fn try_new_with_regions(
+        nodes: Vec<Vector3<f64>>,
+        tets: Vec<[usize; 4]>,
+        regions: Vec<i32>,
+    ) -> Result<Self, MeshError> {
+        let mesh = Self {
+            nodes,
+            tets,
+            regions,
+        };
         mesh.validate()?;
         Ok(mesh)
+    }
+
+    /// The distinct region tags of the elements, sorted.
+    pub fn region_tags(&self) -> Vec<i32> {
+        let mut tags = self.regions.clone();
+        tags.sort_unstable();
+        tags.dedup();
+        tags
     }
 
     /// The nodes' bounding box `(min, max)` [mm] (infinite, inverted, for a mesh without nodes).
@@ -194,6 +224,49 @@ impl TetMesh {
             .filter(|&i| (self.nodes[i][axis] - value).abs() <= tol)
             .collect()
     }
+}
+
+/// A mesh from a file's nodes and tetrahedra (indices into `nodes`, in file order): nodes that
+/// no tetrahedron uses dropped and the rest renumbered in file order, elements of negative
+/// orientation reordered, then validated. Element indices in the error are the tetrahedra's
+/// order in `tets`.
+pub(crate) fn compact_oriented(
+    nodes: Vec<Vector3<f64>>,
+    tets: Vec<[usize; 4]>,
+    regions: Vec<i32>,
+) -> Result<TetMesh, MeshError> {
+    let mut new_index = vec![usize::MAX; nodes.len()];
+    for (element, t) in tets.iter().enumerate() {
+        for &v in t {
+            let Some(slot) = new_index.get_mut(v) else {
+                return Err(MeshError::NodeIndexOutOfRange {
+                    element,
+                    node: v,
+                    node_count: nodes.len(),
+                });
+            };
+            *slot = 0;
+        }
+    }
+    let mut out_nodes = Vec::new();
+    for (i, p) in nodes.into_iter().enumerate() {
+        if new_index[i] == 0 {
+            new_index[i] = out_nodes.len();
+            out_nodes.push(p);
+        }
+    }
+    let tets = tets
+        .into_iter()
+        .map(|t| {
+            let mut t = t.map(|v| new_index[v]);
+            let [a, b, c, d] = t.map(|v| &out_nodes[v]);
+            if signed_volume(a, b, c, d) < 0.0 {
+                t.swap(2, 3);
+            }
+            t
+        })
+        .collect();
+    TetMesh::try_new_with_regions(out_nodes, tets, regions)
 }
 
 /// Cyclic rotation of a triangle so that its smallest index comes first (orientation kept).

@@ -75,6 +75,13 @@ pub enum MeshError {
         /// Index of the third element on the face.
         element: usize,
     },
+    /// The region list does not give one tag per element.
+    RegionCount {
+        /// Region tags given.
+        regions: usize,
+        /// Elements of the mesh.
+        elements: usize,
+    },
 }
 
 impl fmt::Display for MeshError {
@@ -121,21 +128,50 @@ impl fmt::Display for MeshError {
                 f,
                 "element {element} shares a face already shared by two other elements"
             ),
+            Self::RegionCount { regions, elements } => write!(
+                f,
+                "{regions} region tags for {elements} elements (one per element is needed)"
+            ),
         }
     }
 }
 
 impl std::error::Error for MeshError {}
 
+impl MeshError {
+    /// The element at fault, when the error names one.
+    pub fn element(&self) -> Option<usize> {
+        match *self {
+            Self::NodeIndexOutOfRange { element, .. }
+            | Self::DegenerateElement { element, .. }
+            | Self::InvertedElement { element, .. }
+            | Self::DuplicateElement { element, .. }
+            | Self::TangledElement { element, .. }
+            | Self::OvershareFace { element } => Some(element),
+            Self::Empty
+            | Self::NonFiniteNode { .. }
+            | Self::UnreferencedNode { .. }
+            | Self::RegionCount { .. } => None,
+        }
+    }
+}
+
 impl TetMesh {
-    /// Checks the mesh invariants (see [`MeshError`]) in this order: non-empty, finite nodes,
-    /// node indices in range, degenerate, inverted, duplicate elements, unreferenced nodes.
+    /// Checks the mesh invariants (see [`MeshError`]) in this order: non-empty, one region tag
+    /// per element, finite nodes, node indices in range, degenerate, inverted, duplicate
+    /// elements, unreferenced nodes.
     ///
     /// # Errors
     /// The first problem found.
     pub fn validate(&self) -> Result<(), MeshError> {
         if self.tets.is_empty() {
             return Err(MeshError::Empty);
+        }
+        if self.regions.len() != self.tets.len() {
+            return Err(MeshError::RegionCount {
+                regions: self.regions.len(),
+                elements: self.tets.len(),
+            });
         }
         let n = self.nodes.len();
         if let Some(node) = self

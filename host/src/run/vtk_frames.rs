@@ -136,8 +136,7 @@ fn gel(world: &World) -> Grid {
                 "von_mises_kPa",
                 Values::scalars(states.iter().map(|s| 1e3 * s.von_mises)),
             ),
-            // One material today: region 0 everywhere.
-            Array::new("region", Values::I32(vec![0; states.len()])),
+            Array::new("region", Values::I32(gel.mesh().regions.clone())),
             Array::new(
                 "inverted",
                 Values::I32(states.iter().map(|s| i32::from(s.inverted)).collect()),

@@ -195,6 +195,30 @@ pub struct GelSpec {
     /// Fixed nodes.
     #[serde(default = "default_fixed")]
     pub fixed: FixedSpec,
+    /// Materials of the mesh's regions (`[[gel.regions]]`); elements of an unlisted region take
+    /// the gel's own `young_modulus`, `poisson_ratio` and `density`.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub regions: Vec<RegionSpec>,
+}
+
+/// The material of one region of the gel mesh: the elements whose Gmsh physical volume tag (or
+/// `.vtu` / `.vtk` cell value `region`) is `tag`.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct RegionSpec {
+    /// The region's tag in the mesh.
+    pub tag: i32,
+    /// A label (e.g. `"lesion"`), for messages and outputs.
+    #[serde(default, skip_serializing_if = "String::is_empty")]
+    pub name: String,
+    /// Young's modulus [MPa].
+    pub young_modulus: f64,
+    /// Poisson's ratio [-], in (−1, 0.5); the gel's when absent.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub poisson_ratio: Option<f64>,
+    /// Mass density [t/mm³]; the gel's when absent.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub density: Option<f64>,
 }
 
 impl Default for GelSpec {
@@ -210,6 +234,7 @@ impl Default for GelSpec {
             poisson_ratio: default_gel_nu(),
             density: default_gel_rho(),
             fixed: default_fixed(),
+            regions: Vec::new(),
         }
     }
 }

@@ -228,6 +228,22 @@ impl Scene {
                 "no node is fixed: the gel would float away (give `below_z` or `nodes`)",
             );
         }
+        for (i, r) in g.regions.iter().enumerate() {
+            let field = |name: &str| format!("gel.regions[{i}].{name}");
+            if let Some(j) = g.regions[..i].iter().position(|o| o.tag == r.tag) {
+                return fail(
+                    &field("tag"),
+                    format!("region {} is already listed as gel.regions[{j}]", r.tag),
+                );
+            }
+            within(&field("young_modulus"), r.young_modulus, 1e-6, 1e4, "[MPa]")?;
+            if let Some(nu) = r.poisson_ratio {
+                poisson(&field("poisson_ratio"), nu)?;
+            }
+            if let Some(rho) = r.density {
+                density(&field("density"), rho)?;
+            }
+        }
         Ok(())
     }
 
@@ -243,13 +259,17 @@ impl Scene {
         }
         // Up to 10 TPa (ten times diamond).
         within("needle.young_modulus", n.young_modulus, 1e-6, 1e7, "[MPa]")?;
-        let ratio = n.young_modulus / self.gel.young_modulus;
+        // Against the stiffest material of the gel.
+        let gel_e = (self.gel.regions.iter())
+            .map(|r| r.young_modulus)
+            .fold(self.gel.young_modulus, f64::max);
+        let ratio = n.young_modulus / gel_e;
         if !(1.0..=1e12).contains(&ratio) {
             return fail(
                 "needle.young_modulus",
                 format!(
                     "{:e} MPa is {ratio:.1e} times the gel's {:e} MPa: a needle must be stiffer than the gel, by at most 10¹²",
-                    n.young_modulus, self.gel.young_modulus
+                    n.young_modulus, gel_e
                 ),
             );
         }

@@ -1,0 +1,121 @@
+//! Mesh files as other tools write them (`tests/data/mesh/`, written by Gmsh 4.15 through
+//! `tools/gen_mesh_fixtures.py`): Gmsh 2.2 and 4.1, ASCII and binary, with physical volume
+//! groups as regions; and the errors for what the readers refuse, each naming the element.
+
+use needle_host::mesh::{GmshError, TetMesh, read_gmsh, read_gmsh_bytes};
+use std::path::PathBuf;
+
+fn fixture(name: &str) -> PathBuf {
+    let p = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("data/mesh")
+        .join(name);
+    assert!(p.is_file(), "fixture {} is missing", p.display());
+    p
+}
+
+const GMSH_FILES: [&str; 4] = [
+    "two_regions_v22_ascii.msh",
+    "two_regions_v22_binary.msh",
+    "two_regions_v41_ascii.msh",
+    "two_regions_v41_binary.msh",
+];
+
+/// The two-region box: 92 nodes, 251 tetrahedra (Gmsh's count), volume 1000 mm³, region 1
+/// below z = 5 and region 2 above it.
+fn check_two_regions(name: &str, m: &TetMesh) {
+    assert_eq!((m.node_count(), m.tet_count()), (92, 251), "{name}");
+    assert!(
+        (m.total_volume() - 1000.0).abs() < 1e-9,
+        "{name}: volume {}",
+        m.total_volume()
+    );
+    assert_eq!(m.region_tags(), vec![1, 2], "{name}");
+    for (e, t) in m.tets.iter().enumerate() {
+        let zc = t.iter().map(|&v| m.nodes[v].z).sum::<f64>() / 4.0;
+        let expected = if zc < 5.0 { 1 } else { 2 };
+        assert_eq!(m.regions[e], expected, "{name}: element {e} at z = {zc}");
+    }
+}
+
+#[test]
+fn gmsh_22_and_41_ascii_and_binary_read_the_same_two_region_mesh() {
+    let first = read_gmsh(fixture(GMSH_FILES[0])).expect("read");
+    for name in GMSH_FILES {
+        let m = read_gmsh(fixture(name)).unwrap_or_else(|e| panic!("{name}: {e}"));
+        check_two_regions(name, &m);
+        assert_eq!(
+            m.tets, first.tets,
+            "{name}: same elements in the same order"
+        );
+        assert_eq!(m.regions, first.regions, "{name}");
+        for (a, b) in m.nodes.iter().zip(&first.nodes) {
+            assert!((a - b).norm() <= 1e-12, "{name}: node {a} against {b}");
+        }
+    }
+}
+
+#[test]
+fn our_gmsh_writer_keeps_the_regions() {
+    let m = read_gmsh(fixture(GMSH_FILES[2])).expect("read");
+    for binary in [false, true] {
+        let mut bytes = Vec::new();
+        if binary {
+            needle_host::mesh::write_gmsh_binary(&m, &mut bytes).expect("write");
+        } else {
+            needle_host::mesh::write_gmsh_ascii(&m, &mut bytes).expect("write");
+        }
+        let back = read_gmsh_bytes(&bytes).expect("read back");
+        assert_eq!(back, m, "binary {binary}");
+    }
+}
+
+#[test]
+fn a_hexahedral_mesh_is_refused_naming_the_element() {
+    let e = read_gmsh(fixture("hexahedra_v41_ascii.msh")).expect_err("hexahedra");
+    assert!(matches!(e, GmshError::NotTetrahedral { .. }), "{e:?}");
+    let msg = e.to_string();
+    assert!(
+        msg.contains("hexahedron") && msg.contains("element"),
+        "{msg}"
+    );
+}
+
+/// A Gmsh 2.2 ASCII text with the given element lines (nodes of a unit tetrahedron and one more).
+fn v22(elements: &[&str]) -> String {
+    format!(
+        "$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n5\n1 0 0 0\n2 1 0 0\n3 0 1 0\n4 0 0 1\n5 1 1 1\n$EndNodes\n$Elements\n{}\n{}\n$EndElements\n",
+        elements.len(),
+        elements.join("\n")
+    )
+}
+
+#[test]
+fn gmsh_22_errors_name_the_element_and_the_reason() {
+    // Two tetrahedra, one reversed (reoriented), tags 7 and 9, physical tags 3 and 4.
+    let ok = read_gmsh_bytes(v22(&["7 4 2 3 1 1 2 3 4", "9 4 2 4 1 2 3 4 5"]).as_bytes())
+        .expect("valid");
+    assert_eq!(ok.regions, vec![3, 4]);
+    assert!(
+        ok.tets
+            .iter()
+            .enumerate()
+            .all(|(e, _)| ok.tet_volume(e) > 0.0)
+    );
+    let cases: [(&[&str], &str); 5] = [
+        (
+            &["7 4 2 3 1 1 2 3 9"],
+            "element 7 references unknown node tag 9",
+        ),
+        (&["7 4 2 3 1 1 2 3 2"], "gmsh element 7 is invalid"),
+        (&["7 5 2 3 1 1 2 3 4 5 1 2 3"], "element 7 is a hexahedron"),
+        (&["7 4 2 3 1 1 2 3"], "the tags and nodes of element 7"),
+        (&["7 99 2 3 1 1 2 3 4"], "element 7 has unknown type 99"),
+    ];
+    for (lines, expected) in cases {
+        let e = read_gmsh_bytes(v22(lines).as_bytes()).expect_err(expected);
+        assert!(e.to_string().contains(expected), "{lines:?}: {e}");
+    }
+    // Triangles and lines are skipped; with no tetrahedron the file is refused.
+    let e = read_gmsh_bytes(v22(&["1 2 2 3 1 1 2 3"]).as_bytes()).expect_err("no tets");
+    assert!(matches!(e, GmshError::NoTetrahedra), "{e:?}");
+}
