@@ -110,17 +110,7 @@ impl<const M: usize> BaseElimination<M> {
                 self.s[i][k] = v;
             }
         }
-        for i in 0..n {
-            let si = self.s[i];
-            for j in 0..=i {
-                let mut v = w[BASE_ROWS + i][BASE_ROWS + j];
-                for k in 0..6 {
-                    v -= si[k] * w[k][BASE_ROWS + j];
-                }
-                self.w[i][j] = v;
-                self.w[j][i] = v;
-            }
-        }
+        self.schur_dispatch(w, n);
         for (k, g) in frame.used_groups().iter().skip(1).enumerate() {
             self.groups[k] = RowGroup {
                 start: g.start.saturating_sub(BASE_ROWS as u32),
@@ -130,6 +120,61 @@ impl<const M: usize> BaseElimination<M> {
         }
         self.n = n;
         true
+    }
+
+    /// `W' = W_oo − S W_bo` into `self.w` (rows and columns `0..n`), with the AVX2 copy of the
+    /// loop when the CPU has it (the same operations in the same order: the same result).
+    fn schur_dispatch(&mut self, w: &[[f64; M]; M], n: usize) {
+        #[cfg(target_arch = "x86_64")]
+        if crate::math::use_avx2() {
+            // SAFETY: AVX2 support was checked at run time.
+            unsafe { self.schur_avx2(w, n) };
+            return;
+        }
+        self.schur(w, n);
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn schur_avx2(&mut self, w: &[[f64; M]; M], n: usize) {
+        self.schur(w, n);
+    }
+
+    /// Row `i` of the lower triangle in one pass over the base rows' columns (contiguous, so it
+    /// vectorises), entry by entry the same operations in the same order; then mirrored, so
+    /// that `W'` is exactly symmetric.
+    #[inline(always)]
+    fn schur(&mut self, w: &[[f64; M]; M], n: usize) {
+        for i in 0..n {
+            let si = self.s[i];
+            let cols = BASE_ROWS..BASE_ROWS + i + 1;
+            let src = &w[BASE_ROWS + i][cols.clone()];
+            let b: [&[f64]; 6] = core::array::from_fn(|k| &w[k][cols.clone()]);
+            let row = &mut self.w[i][..=i];
+            let (b0, b1, b2, b3, b4, b5) = (
+                &b[0][..=i],
+                &b[1][..=i],
+                &b[2][..=i],
+                &b[3][..=i],
+                &b[4][..=i],
+                &b[5][..=i],
+            );
+            for j in 0..=i {
+                let mut v = src[j];
+                v -= si[0] * b0[j];
+                v -= si[1] * b1[j];
+                v -= si[2] * b2[j];
+                v -= si[3] * b3[j];
+                v -= si[4] * b4[j];
+                v -= si[5] * b5[j];
+                row[j] = v;
+            }
+        }
+        for i in 0..n {
+            for j in 0..i {
+                self.w[j][i] = self.w[i][j];
+            }
+        }
     }
 
     /// `δ' = δ_o − S δ_b` from the frame's other rows and the base violation `delta_b`.

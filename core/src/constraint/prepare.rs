@@ -4,7 +4,8 @@ use super::project::Sym2;
 use super::{Block, BlockGs};
 use crate::math::spd_inverse_in_place;
 use crate::payload::{
-    ComplianceFrame, GroupKind, RowGroup, ValidationError, validate_compliance, validate_groups,
+    ComplianceFrame, GroupKind, RowGroup, ValidationError, validate_compliance, validate_entries,
+    validate_groups,
 };
 
 impl<const M: usize> BlockGs<M> {
@@ -36,6 +37,26 @@ impl<const M: usize> BlockGs<M> {
         self.n_blocks = 0;
         validate_groups(groups, m, M, false)?;
         validate_compliance(w, m)?;
+        self.prepare_unchecked(w, m, groups);
+        Ok(())
+    }
+
+    /// [`Self::prepare`] for a `w` symmetric by construction (the base rows' Schur complement,
+    /// [`crate::reduce`]): the same checks but symmetry.
+    ///
+    /// # Errors
+    /// A [`ValidationError`] for an inconsistent table, a non-finite entry or a non-positive
+    /// diagonal.
+    pub(crate) fn prepare_symmetric(
+        &mut self,
+        w: &[[f64; M]; M],
+        m: usize,
+        groups: &[RowGroup],
+    ) -> Result<(), ValidationError> {
+        self.m = 0;
+        self.n_blocks = 0;
+        validate_groups(groups, m, M, false)?;
+        validate_entries(w, m)?;
         self.prepare_unchecked(w, m, groups);
         Ok(())
     }

@@ -267,7 +267,7 @@ impl<const M: usize, const N: usize> Controller<M, N> {
             // is the Schur complement of the base block: a non-positive diagonal means W is not
             // positive definite (e.g. a corrupted diagonal), an overflow is non-finite.
             self.gs
-                .prepare(&self.red.w, n, self.red.groups())
+                .prepare_symmetric(&self.red.w, n, self.red.groups())
                 .map_err(|e| match e {
                     ValidationError::NonPositiveDiagonal { .. } => {
                         StepError::NotPositiveDefinite { stage: SCHUR }

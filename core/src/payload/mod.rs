@@ -25,6 +25,7 @@ use core::mem::MaybeUninit;
 
 pub use command::{Command, SolverReport, StatusFlags};
 pub use frame::ComplianceFrame;
+pub(crate) use validate::validate_entries;
 pub use validate::{
     LayoutFault, MAX_JOINT_ANGLE, ValidationError, validate_compliance, validate_groups,
 };
