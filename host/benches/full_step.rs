@@ -7,6 +7,9 @@
 //!   (the scene default).
 //! - `full_step_<n>_nodes_synchronous` (1500 and 1800 nodes): the same with
 //!   `solver.background_factorization = false`, the paper's synchronous factorisation.
+//! - `full_step_<n>_nodes_pcg` (1800 and 5000 nodes): the same with `solver.gel_solve = "pcg"`
+//!   (conjugate gradients on each step's matrix, preconditioned by a factor refreshed in the
+//!   background at most every 8 steps).
 //!
 //! A world cannot be cloned, so the timed loop runs successive steps on the live world: every
 //! iteration advances the insertion by another 0.1 mm. The number of timed steps is bounded (flat
@@ -46,17 +49,32 @@ fn median(mut v: Vec<f64>) -> f64 {
     v[v.len() / 2]
 }
 
-/// The complex scene at about `nodes` gel nodes, the gel factorised in the background or not.
-fn scene(nodes: usize, background: bool) -> Scene {
+/// How the gel's free motion is solved in a bench case.
+#[derive(Clone, Copy, PartialEq)]
+enum Mode {
+    /// Direct solve, the factor made in the background (the scene default).
+    Background,
+    /// Direct solve, factorised every step (the paper's).
+    Synchronous,
+    /// Preconditioned CG with the background factor.
+    Pcg,
+}
+
+/// The complex scene at about `nodes` gel nodes, its gel solved as `mode` says.
+fn scene(nodes: usize, mode: Mode) -> Scene {
+    let mut overrides = vec![
+        ("gel.box.nodes".to_string(), nodes.to_string()),
+        (
+            "solver.background_factorization".to_string(),
+            (mode != Mode::Synchronous).to_string(),
+        ),
+    ];
+    if mode == Mode::Pcg {
+        overrides.push(("solver.gel_solve".into(), "\"pcg\"".into()));
+    }
     Scene::builtin("complex")
         .expect("embedded scene")
-        .with_overrides(&[
-            ("gel.box.nodes".into(), nodes.to_string()),
-            (
-                "solver.background_factorization".into(),
-                background.to_string(),
-            ),
-        ])
+        .with_overrides(&overrides)
         .expect("valid override")
 }
 
@@ -83,20 +101,22 @@ fn bench_full_step(c: &mut Criterion) {
     let mut group = c.benchmark_group("full_step");
     group.sample_size(10).sampling_mode(SamplingMode::Flat);
     let variants = [
-        (600, true),
-        (1100, true),
-        (1500, true),
-        (1800, true),
-        (1500, false),
-        (1800, false),
+        (600, Mode::Background),
+        (1100, Mode::Background),
+        (1500, Mode::Background),
+        (1800, Mode::Background),
+        (1500, Mode::Synchronous),
+        (1800, Mode::Synchronous),
+        (1800, Mode::Pcg),
+        (5000, Mode::Pcg),
     ];
-    for (nodes, background) in variants {
-        let name = if background {
-            format!("full_step_{nodes}_nodes")
-        } else {
-            format!("full_step_{nodes}_nodes_synchronous")
+    for (nodes, mode) in variants {
+        let name = match mode {
+            Mode::Background => format!("full_step_{nodes}_nodes"),
+            Mode::Synchronous => format!("full_step_{nodes}_nodes_synchronous"),
+            Mode::Pcg => format!("full_step_{nodes}_nodes_pcg"),
         };
-        let setup = Setup::build(&scene(nodes, background)).expect("the benchmark scene builds");
+        let setup = Setup::build(&scene(nodes, mode)).expect("the benchmark scene builds");
         let planned = setup.plan.steps;
         let (mut world, params) = (setup.world, setup.params);
         let mut core = InProcess::<ROWS>::new(setup.robot, setup.inverse);

@@ -355,6 +355,122 @@ impl Cholesky {
     }
 }
 
+/// Scratch of [`pcg_solve`]: four vectors of the system's size, allocated once.
+#[derive(Clone, Debug, Default)]
+pub struct PcgWork {
+    r: Vec<f64>,
+    z: Vec<f64>,
+    p: Vec<f64>,
+    q: Vec<f64>,
+}
+
+impl PcgWork {
+    /// Scratch for systems of dimension `n`.
+    pub fn new(n: usize) -> Self {
+        Self {
+            r: vec![0.0; n],
+            z: vec![0.0; n],
+            p: vec![0.0; n],
+            q: vec![0.0; n],
+        }
+    }
+}
+
+/// What a [`pcg_solve`] did.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct PcgOutcome {
+    /// Iterations made (matrix-vector products); 0 for a zero right-hand side.
+    pub iterations: usize,
+    /// `‖b − A x‖ / ‖b‖` at the end (0 for a zero right-hand side).
+    pub relative_residual: f64,
+    /// Whether the residual reached the tolerance. `false`: the iteration cap was hit, or the
+    /// iteration broke down (`pᵀAp ≤ 0` or a non-finite value: `A` or the preconditioner is
+    /// not positive definite); `x` then holds the last finite iterate.
+    pub converged: bool,
+}
+
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| x * y).sum()
+}
+
+/// Preconditioned conjugate gradients on `A x = b` from `x = 0`, with the factor `pre` of a
+/// nearby matrix as preconditioner (`z = pre⁻¹ r`): stops when `‖b − A x‖ ≤ tolerance ‖b‖`
+/// (Euclidean norms) or after `max_iterations` iterations. With `pre` the factor of `A` itself
+/// it converges in one iteration.
+///
+/// # Errors
+/// [`LinalgError::DimensionMismatch`] for vectors or a factor of another size,
+/// [`LinalgError::NotFactorized`] when `pre` holds no factorisation.
+pub fn pcg_solve(
+    a: &SymmetricMatrix,
+    pre: &mut Cholesky,
+    b: &[f64],
+    x: &mut [f64],
+    work: &mut PcgWork,
+    tolerance: f64,
+    max_iterations: usize,
+) -> Result<PcgOutcome, LinalgError> {
+    let n = a.pattern.dim();
+    for len in [b.len(), x.len(), pre.dim(), work.r.len()] {
+        if len != n {
+            return Err(LinalgError::DimensionMismatch {
+                expected: n,
+                got: len,
+            });
+        }
+    }
+    x.iter_mut().for_each(|v| *v = 0.0);
+    let b_norm = dot(b, b).sqrt();
+    if b_norm == 0.0 {
+        return Ok(PcgOutcome {
+            iterations: 0,
+            relative_residual: 0.0,
+            converged: true,
+        });
+    }
+    let PcgWork { r, z, p, q } = work;
+    r.copy_from_slice(b);
+    z.copy_from_slice(b);
+    pre.solve_in_place(z)?;
+    p.copy_from_slice(z);
+    let mut rz = dot(r, z);
+    let mut outcome = PcgOutcome {
+        iterations: 0,
+        relative_residual: 1.0,
+        converged: false,
+    };
+    while outcome.iterations < max_iterations {
+        a.mul_vec(p, q)?;
+        let pq = dot(p, q);
+        let alpha = rz / pq;
+        if !(pq > 0.0 && alpha.is_finite()) {
+            return Ok(outcome);
+        }
+        outcome.iterations += 1;
+        for ((xi, ri), (pi, qi)) in x.iter_mut().zip(r.iter_mut()).zip(p.iter().zip(q.iter())) {
+            *xi += alpha * pi;
+            *ri -= alpha * qi;
+        }
+        outcome.relative_residual = dot(r, r).sqrt() / b_norm;
+        if !outcome.relative_residual.is_finite() {
+            return Ok(outcome);
+        }
+        if outcome.relative_residual <= tolerance {
+            outcome.converged = true;
+            return Ok(outcome);
+        }
+        z.copy_from_slice(r);
+        pre.solve_in_place(z)?;
+        let rz_next = dot(r, z);
+        let beta = rz_next / rz;
+        rz = rz_next;
+        for (pi, zi) in p.iter_mut().zip(z.iter()) {
+            *pi = zi + beta * *pi;
+        }
+    }
+    Ok(outcome)
+}
+
 /// Geometric nested-dissection elimination order for the matrix graph of `pattern`, with a
 /// position per row (`coords[i]`, e.g. the node of a dof) [mm].
 ///

@@ -11,9 +11,11 @@ use crate::error::{Body, SetupError};
 use crate::fem::Elasticity;
 use crate::fem::beam::BeamSection;
 use crate::fem::tetra::Kinematics;
-use crate::free_motion::{GelModel, GelParams, NeedleModel, NeedleParams, RegionMaterial};
+use crate::free_motion::{
+    GelModel, GelParams, NeedleModel, NeedleParams, PcgParams, RegionMaterial,
+};
 use crate::mesh::{TetMesh, box_mesh, read_gmsh};
-use crate::scene::{InsertionMode, Scene};
+use crate::scene::{GelSolveSpec, InsertionMode, Scene};
 use crate::step::{Insertion, Interaction, StepParams, TargetMotion};
 use crate::world::{World, WorldParts, node_frame_offset};
 use nalgebra::{Isometry3, Rotation3, Translation3, UnitQuaternion, Vector3};
@@ -169,6 +171,10 @@ pub fn gel_params(scene: &Scene) -> GelParams {
         kinematics: Kinematics::Corotational,
         refactor_every: scene.solver.refactor_every() as usize,
         background_factorization: scene.solver.background_factorization,
+        pcg: (scene.solver.gel_solve == GelSolveSpec::Pcg).then_some(PcgParams {
+            tolerance: scene.solver.pcg_tolerance,
+            max_iterations: scene.solver.pcg_max_iterations as usize,
+        }),
     }
 }
 

@@ -378,6 +378,12 @@ fn print_text(s: &RunSummary) {
             s.background_factorizations, s.immediate_factorizations
         );
     }
+    if s.pcg_iterations_max > 0 {
+        println!(
+            "gel CG iterations per step: mean {:.2}, max {} ({} steps did not converge and factorised at once)",
+            s.pcg_iterations_mean, s.pcg_iterations_max, s.pcg_fallbacks
+        );
+    }
     if s.unreachable_steps + s.limit_steps > 0 {
         println!(
             "target unreachable in {} steps, a joint at its limit in {} steps",

@@ -6,7 +6,7 @@ use crate::fem::FemError;
 use crate::fem::tetra::largest_rotation_between;
 use crate::linalg::{Cholesky, LinalgError, SymmetricMatrix, SymmetricPattern};
 use nalgebra::Matrix3;
-use std::sync::mpsc::{Receiver, SyncSender, sync_channel};
+use std::sync::mpsc::{Receiver, SyncSender, TryRecvError, sync_channel};
 
 /// Background factorisation: the largest rotation of an element [rad] between the matrix of the
 /// factor in use and the current positions for which that factor is used; above it the step
@@ -123,6 +123,21 @@ impl Background {
             .recv()
             .map(Some)
             .map_err(|_| FemError::WorkerStopped)
+    }
+
+    /// The job in flight if it is finished, without waiting.
+    ///
+    /// # Errors
+    /// [`FemError::WorkerStopped`] if the worker is gone.
+    pub fn poll(&mut self) -> Result<Option<Box<Job>>, FemError> {
+        if self.spare.is_some() {
+            return Ok(None);
+        }
+        match self.done.try_recv() {
+            Ok(job) => Ok(Some(job)),
+            Err(TryRecvError::Empty) => Ok(None),
+            Err(TryRecvError::Disconnected) => Err(FemError::WorkerStopped),
+        }
     }
 
     /// Sends `job` to the worker.

@@ -1,6 +1,6 @@
 //! The gel: corotational tetrahedra, 3 dofs per node, Dirichlet nodes eliminated.
 
-use super::{Elements, FeModel, ModelLayout};
+use super::{Elements, FeModel, ModelLayout, PcgParams};
 use crate::fem::tetra::{CorotationalTetra, Kinematics};
 use crate::fem::{Elasticity, FemError};
 use crate::mesh::TetMesh;
@@ -37,6 +37,11 @@ pub struct GelParams {
     /// Factorise on a second thread while the steps go on, and use the factor `refactor_every`
     /// steps later (see the module docs).
     pub background_factorization: bool,
+    /// Preconditioned-CG free motion: each step solves its own matrix by CG with the factor
+    /// in use (refreshed every `refactor_every` steps at most, in the background when
+    /// `background_factorization`) as preconditioner; `None`: the direct solve with the factor
+    /// (see the module docs).
+    pub pcg: Option<PcgParams>,
 }
 
 impl Default for GelParams {
@@ -52,6 +57,7 @@ impl Default for GelParams {
             kinematics: Kinematics::Corotational,
             refactor_every: 1,
             background_factorization: false,
+            pcg: None,
         }
     }
 }
@@ -182,6 +188,7 @@ impl FeModel<Tets> {
                 refactor_every: params.refactor_every,
                 dof_coords: nd,
                 background: params.background_factorization,
+                pcg: params.pcg,
             },
         )
     }

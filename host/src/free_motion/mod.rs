@@ -36,6 +36,19 @@
 //!   background factorisation, and a step whose elements rotated more than
 //!   [`LAG_ROTATION_LIMIT`] since the matrix in use factorise at once. The worker owns a second
 //!   factor buffer; the two are swapped, nothing is allocated per step.
+//! - **Preconditioned CG** (`GelParams::pcg`, the asynchronous preconditioner of Courtecuisse
+//!   et al.): every step assembles its own matrix `A = K(x) + M/h²` and solves the exact Newton
+//!   system by conjugate gradients ([`crate::linalg::pcg_solve`]: matrix-vector products with
+//!   `A`, the factor in use as preconditioner) to a relative residual tolerance, within an
+//!   iteration cap. The factor is refreshed from a step's matrix at most every `refactor_every`
+//!   steps: sent to the worker when it is idle, and put in use at the start of the first step
+//!   after it finished — the step never waits for it (without background thread it is
+//!   factorised at once, after the solve). The first step, a requested refactorisation, and a
+//!   step whose CG does not converge within the cap (or breaks down) factorise their own matrix
+//!   at once and solve directly. The compliance and the corrective motion use the factor in use
+//!   as the approximation of `K⁻¹` (consistent with each other, as before); no rotation guard
+//!   is needed, since CG solves the current matrix. Which factor a step uses depends on the
+//!   worker's timing: runs are not bit-for-bit repeatable in this mode.
 //! - All buffers are allocated at construction.
 //!
 //! Files: `system.rs` (the reduced system and its solves), `background.rs` (the factorisation
@@ -54,6 +67,7 @@ mod system;
 pub use background::LAG_ROTATION_LIMIT;
 pub use gel::{FillOrdering, GelModel, GelParams, RegionMaterial, Tets};
 pub use needle::{Beams, NeedleModel, NeedleParams};
+pub use system::{PcgParams, PcgStats};
 
 use crate::fem::FemError;
 use crate::linalg::SymmetricMatrix;
@@ -116,6 +130,7 @@ struct ModelLayout<'a> {
     refactor_every: usize,
     dof_coords: Option<&'a [[f64; 3]]>,
     background: bool,
+    pcg: Option<PcgParams>,
 }
 
 impl<E: Elements> FeModel<E> {
@@ -144,9 +159,10 @@ impl<E: Elements> FeModel<E> {
             refactor_every: layout.refactor_every,
             dof_coords: layout.dof_coords,
             background: layout.background,
+            pcg: layout.pcg,
         })?;
-        let lag = layout
-            .background
+        // CG solves the current matrix: no rotation guard on the factor's age.
+        let lag = (layout.background && layout.pcg.is_none())
             .then(|| LagGuard::new(elements.rotations().len()));
         Ok(Self {
             elements,
@@ -228,6 +244,12 @@ impl<E: Elements> FeModel<E> {
             .map(|b| (b.adopted, b.immediate))
     }
 
+    /// Preconditioned-CG mode: its counts (iterations, fallbacks, the last step's outcome);
+    /// `None` with the direct solve.
+    pub fn pcg_stats(&self) -> Option<PcgStats> {
+        self.sys.pcg.as_ref().map(|p| p.stats)
+    }
+
     /// Background mode: the largest rotation of an element between the matrix of the factor the
     /// last free motion used and its positions [rad] (0 when it factorised at once, and
     /// without background factorisation).
@@ -295,7 +317,15 @@ impl<E: Elements> FeModel<E> {
 
     fn free_motion_with(&mut self, f_ext: Option<&[f64]>) -> Result<&[f64], FemError> {
         self.compute_internal_forces();
+        for (i, (d, fi)) in self.dx.iter_mut().zip(&self.f_int).enumerate() {
+            *d = f_ext.map_or(0.0, |f| f[i]) - fi;
+        }
         let (elements, slots, lag) = (&self.elements, &self.slots, &mut self.lag);
+        if self.sys.pcg.is_some() {
+            self.sys
+                .solve_step_pcg(|v| elements.assemble(slots, v), &mut self.dx)?;
+            return Ok(&self.dx);
+        }
         let event = self.sys.update_factor(
             |adopted| {
                 lag.as_mut()
@@ -305,9 +335,6 @@ impl<E: Elements> FeModel<E> {
         )?;
         if let Some(g) = self.lag.as_mut() {
             g.record(event, self.elements.rotations());
-        }
-        for (i, (d, fi)) in self.dx.iter_mut().zip(&self.f_int).enumerate() {
-            *d = f_ext.map_or(0.0, |f| f[i]) - fi;
         }
         self.sys.solve_global(&mut self.dx)?;
         Ok(&self.dx)

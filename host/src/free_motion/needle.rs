@@ -151,6 +151,7 @@ impl FeModel<Beams> {
                 refactor_every: params.refactor_every,
                 dof_coords: None,
                 background: false,
+                pcg: None,
             },
         )
     }

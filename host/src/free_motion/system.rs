@@ -2,9 +2,12 @@
 //! pattern and its slots, the regularisation `M/h²`, the factor (made at once, or in the
 //! background), and the solves over global dofs.
 
-use super::background::{Adopted, Background, FactorEvent};
+use super::background::{Adopted, Background, FactorEvent, Job};
 use crate::fem::FemError;
-use crate::linalg::{Cholesky, SymmetricMatrix, SymmetricPattern, nested_dissection_order};
+use crate::linalg::{
+    Cholesky, PcgOutcome, PcgWork, SymmetricMatrix, SymmetricPattern, nested_dissection_order,
+    pcg_solve,
+};
 
 /// Marks a fixed (eliminated) dof in the global → reduced map.
 pub(super) const SKIP: u32 = u32::MAX;
@@ -29,6 +32,47 @@ pub(super) struct ReducedSystem {
     pub refactor_requested: bool,
     /// The factorisation thread (background mode).
     pub background: Option<Background>,
+    /// Preconditioned-CG mode: each step solves its own matrix with the factor in use as
+    /// preconditioner.
+    pub pcg: Option<PcgState>,
+}
+
+/// Settings of the preconditioned-CG free motion (see the module docs of
+/// [`crate::free_motion`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PcgParams {
+    /// Stop when `‖b − A Δx‖ ≤ tolerance ‖b‖` [-].
+    pub tolerance: f64,
+    /// Iteration cap; a step that reaches it without converging factorises its own matrix at
+    /// once and solves directly.
+    pub max_iterations: usize,
+}
+
+/// Counts of the preconditioned-CG free motion over a model's life.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct PcgStats {
+    /// Steps solved by CG (not counting the steps that factorised at once).
+    pub steps: u64,
+    /// CG iterations over those steps.
+    pub iterations: u64,
+    /// Most iterations of one step.
+    pub max_iterations: usize,
+    /// Steps that did not converge within the cap (or broke down) and factorised at once.
+    pub fallbacks: u64,
+    /// The last step's CG outcome.
+    pub last: PcgOutcome,
+}
+
+/// The state of the preconditioned-CG mode: this step's matrix, the CG scratch and counts.
+#[derive(Debug)]
+pub(super) struct PcgState {
+    params: PcgParams,
+    /// This step's matrix `K(x) + M/h²`, assembled every step; sent to the worker (swapped with
+    /// its buffer) when a refresh is due.
+    current: SymmetricMatrix,
+    work: PcgWork,
+    rhs: Vec<f64>,
+    pub stats: PcgStats,
 }
 
 /// How a reduced system is built: which global dofs are fixed, the element entries, the
@@ -41,6 +85,7 @@ pub(super) struct SystemLayout<'a, I: Iterator<Item = (usize, usize)>, F: Fn() -
     pub refactor_every: usize,
     pub dof_coords: Option<&'a [[f64; 3]]>,
     pub background: bool,
+    pub pcg: Option<PcgParams>,
 }
 
 impl ReducedSystem {
@@ -91,6 +136,13 @@ impl ReducedSystem {
             None
         };
         let n = free.len();
+        let pcg = layout.pcg.map(|params| PcgState {
+            params,
+            current: SymmetricMatrix::zeros(pattern.clone()),
+            work: PcgWork::new(n),
+            rhs: vec![0.0; n],
+            stats: PcgStats::default(),
+        });
         Ok((
             Self {
                 dof_map,
@@ -105,6 +157,7 @@ impl ReducedSystem {
                 refactor_every: layout.refactor_every.max(1),
                 refactor_requested: false,
                 background,
+                pcg,
             },
             slots,
         ))
@@ -162,17 +215,28 @@ impl ReducedSystem {
         if bg.in_flight_steps < every {
             return Ok(Adopted::Idle);
         }
-        let Some(mut job) = bg.finish()? else {
+        let Some(job) = bg.finish()? else {
             return Ok(Adopted::Idle);
         };
+        Ok(Self::adopt(&mut self.chol, &mut self.matrix, bg, job))
+    }
+
+    /// Puts a finished job's factor and matrix in use (their buffers go back to the worker's
+    /// spare job), or drops a failed one.
+    fn adopt(
+        chol: &mut Cholesky,
+        matrix: &mut SymmetricMatrix,
+        bg: &mut Background,
+        mut job: Box<Job>,
+    ) -> Adopted {
         let ok = job.succeeded();
         if ok {
-            std::mem::swap(&mut self.chol, &mut job.chol);
-            std::mem::swap(&mut self.matrix, &mut job.matrix);
+            std::mem::swap(chol, &mut job.chol);
+            std::mem::swap(matrix, &mut job.matrix);
             bg.adopted += 1;
         }
         bg.spare = Some(job);
-        Ok(if ok { Adopted::Yes } else { Adopted::Failed })
+        if ok { Adopted::Yes } else { Adopted::Failed }
     }
 
     /// Background mode: writes this step's matrix into the staging buffer.
@@ -288,6 +352,129 @@ impl ReducedSystem {
             event.submitted = true;
         }
         Ok(event)
+    }
+
+    /// Preconditioned-CG mode: the free-motion solve of a step. Writes this step's matrix
+    /// (`write` fills the elements' values), puts a finished background factor in use (never
+    /// waits for one), and solves `A Δx = rhs` (global dofs, replaced by `Δx`, zero at fixed
+    /// dofs) by CG with the factor in use as preconditioner. The first step, a requested
+    /// refactorisation and a step whose CG does not converge within the cap factorise this
+    /// step's matrix at once and solve directly. After a CG step, the matrix is sent to be
+    /// factorised when the worker is idle and the factor in use is `refactor_every` steps old
+    /// (without background thread: factorised at once, for the next step).
+    ///
+    /// # Errors
+    /// A failed factorisation at once, or a stopped background thread.
+    pub fn solve_step_pcg(
+        &mut self,
+        write: impl FnOnce(&mut [f64]),
+        rhs: &mut [f64],
+    ) -> Result<(), FemError> {
+        let Some(pcg) = self.pcg.as_mut() else {
+            return self.solve_global(rhs);
+        };
+        Self::write_into(
+            &mut pcg.current,
+            &self.diag_slots,
+            &self.regularization,
+            write,
+        );
+        for (k, &g) in self.free.iter().enumerate() {
+            pcg.rhs[k] = rhs[g];
+        }
+        match self.poll_background()? {
+            Adopted::Yes => self.factor_age = Some(0),
+            Adopted::Idle | Adopted::Failed => {
+                if let Some(age) = self.factor_age.as_mut() {
+                    *age += 1;
+                }
+            }
+        }
+        let Self {
+            chol, work, pcg, ..
+        } = self;
+        let Some(pcg) = pcg.as_mut() else {
+            return Ok(());
+        };
+        let mut solved = false;
+        if self.factor_age.is_some() && !self.refactor_requested {
+            let out = pcg_solve(
+                &pcg.current,
+                chol,
+                &pcg.rhs,
+                work,
+                &mut pcg.work,
+                pcg.params.tolerance,
+                pcg.params.max_iterations,
+            )?;
+            pcg.stats.last = out;
+            if out.converged {
+                pcg.stats.steps += 1;
+                pcg.stats.iterations += out.iterations as u64;
+                pcg.stats.max_iterations = pcg.stats.max_iterations.max(out.iterations);
+                solved = true;
+            } else {
+                pcg.stats.fallbacks += 1;
+            }
+        }
+        if solved {
+            self.refresh_pcg()?;
+        } else {
+            // No factor yet, a request, or CG did not converge: this step's own factor.
+            self.discard_background()?;
+            if let Some(pcg) = self.pcg.as_mut() {
+                std::mem::swap(&mut self.matrix, &mut pcg.current);
+                self.work.copy_from_slice(&pcg.rhs);
+            }
+            self.factorize_now()?;
+            if let Some(bg) = self.background.as_mut() {
+                bg.immediate += 1;
+            }
+            self.chol.solve_in_place(&mut self.work)?;
+        }
+        rhs.iter_mut().for_each(|v| *v = 0.0);
+        for (k, &g) in self.free.iter().enumerate() {
+            rhs[g] = self.work[k];
+        }
+        Ok(())
+    }
+
+    /// Preconditioned-CG mode: puts a finished background factor in use, without waiting.
+    fn poll_background(&mut self) -> Result<Adopted, FemError> {
+        let Some(bg) = self.background.as_mut() else {
+            return Ok(Adopted::Idle);
+        };
+        let Some(job) = bg.poll()? else {
+            return Ok(Adopted::Idle);
+        };
+        Ok(Self::adopt(&mut self.chol, &mut self.matrix, bg, job))
+    }
+
+    /// Preconditioned-CG mode, after a CG step: refreshes the factor from this step's matrix
+    /// when due (sent to the idle worker, or factorised at once without one).
+    fn refresh_pcg(&mut self) -> Result<(), FemError> {
+        let due = self
+            .factor_age
+            .is_none_or(|age| age + 1 >= self.refactor_every);
+        let Some(pcg) = self.pcg.as_mut() else {
+            return Ok(());
+        };
+        if !due {
+            return Ok(());
+        }
+        match self.background.as_mut() {
+            Some(bg) => {
+                if let Some(mut job) = bg.spare.take() {
+                    std::mem::swap(&mut job.matrix, &mut pcg.current);
+                    bg.send(job)?;
+                }
+                Ok(())
+            }
+            None => {
+                std::mem::swap(&mut self.matrix, &mut pcg.current);
+                self.factorize_now()
+            }
+        }
     }
 
     /// [`Self::solve_global`] after checking the length (one value per global dof).

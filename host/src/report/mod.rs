@@ -81,7 +81,8 @@ pub enum Group {
     BlendDistance,
     /// Sliding-constraint spacing d_n.
     ConstraintSpacing,
-    /// The gel's factorisation: in the background (one step old) or synchronous.
+    /// The gel's factorisation: in the background (pipelines), preconditioned CG with an
+    /// asynchronous factor, or synchronous.
     Factorization,
 }
 
@@ -107,7 +108,7 @@ impl Group {
             }
             Group::ConstraintSpacing => "Sliding-constraint spacing d_n (complex, inverse)",
             Group::Factorization => {
-                "Gel factorisation: background pipelines against synchronous (inverse)"
+                "Gel factorisation: background pipelines and preconditioned CG against synchronous (inverse)"
             }
         }
     }

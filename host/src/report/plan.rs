@@ -111,7 +111,8 @@ fn sweeps(quick: bool, specs: &mut Vec<Spec>) {
     }
 }
 
-/// The gel's factorisation: background pipelines of 1–3 steps against synchronous.
+/// The gel's factorisation: background pipelines of 1–3 steps and the preconditioned CG
+/// (asynchronous factor) against synchronous.
 fn factorization(quick: bool, specs: &mut Vec<Spec>) {
     let scenes: &[&'static str] = if quick {
         &["complex"]
@@ -119,7 +120,7 @@ fn factorization(quick: bool, specs: &mut Vec<Spec>) {
         &["simple", "complex"]
     };
     // (overrides beyond the base, parameter text)
-    let variants: [(&[(&str, &str)], &str); 4] = [
+    let variants: [(&[(&str, &str)], &str); 5] = [
         (
             &[("solver.refactor_every", "1")],
             "background, a factor 1 step old",
@@ -128,6 +129,10 @@ fn factorization(quick: bool, specs: &mut Vec<Spec>) {
         (
             &[("solver.refactor_every", "3")],
             "background, pipeline of 3 steps",
+        ),
+        (
+            &[("solver.gel_solve", "\"pcg\"")],
+            "preconditioned CG, background factor at most every 8 steps",
         ),
         (
             &[("solver.background_factorization", "false")],

@@ -132,8 +132,17 @@ pub struct RunSummary {
     /// `solver.background_factorization`).
     pub background_factorizations: u64,
     /// Gel factorisations made at once in background mode (the first step, and steps whose
-    /// elements rotated more than `LAG_ROTATION_LIMIT` since the previous one).
+    /// elements rotated more than `LAG_ROTATION_LIMIT` since the previous one; with
+    /// `solver.gel_solve = "pcg"`, steps whose CG did not converge).
     pub immediate_factorizations: u64,
+    /// `solver.gel_solve = "pcg"`: CG iterations per step solved by CG, mean (0 with the
+    /// direct solve).
+    pub pcg_iterations_mean: f64,
+    /// `solver.gel_solve = "pcg"`: most CG iterations of a step.
+    pub pcg_iterations_max: usize,
+    /// `solver.gel_solve = "pcg"`: steps whose CG reached its cap (or broke down) and
+    /// factorised at once.
+    pub pcg_fallbacks: u64,
     /// Times the host held the insertion because no command arrived within the transport's
     /// deadline.
     pub holds: usize,
@@ -264,6 +273,7 @@ impl Statistics {
             })
             .collect();
         let background = world.gel.background_counts().unwrap_or((0, 0));
+        let pcg = world.gel.pcg_stats();
         let deviation = self.path.deviation();
         let min_clearance_mm = self
             .min_clearance
@@ -332,6 +342,15 @@ impl Statistics {
             limit_steps: count_flag(reports, StatusFlags::SATURATED_LIMIT),
             background_factorizations: background.0,
             immediate_factorizations: background.1,
+            pcg_iterations_mean: pcg.map_or(0.0, |p| {
+                if p.steps == 0 {
+                    0.0
+                } else {
+                    p.iterations as f64 / p.steps as f64
+                }
+            }),
+            pcg_iterations_max: pcg.map_or(0, |p| p.max_iterations),
+            pcg_fallbacks: pcg.map_or(0, |p| p.fallbacks),
             holds: end.holds.0,
             held_ms: end.holds.1,
             path_deviation_mean_mm: deviation.0,

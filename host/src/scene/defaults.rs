@@ -8,7 +8,7 @@
 //! background factorisation (a run's choices; the FE model's defaults are the static Newton step,
 //! synchronous); the needle's material and the path sampling have no other home.
 
-use super::{FixedSpec, JacobianSpec, MethodSpec};
+use super::{FixedSpec, GelSolveSpec, JacobianSpec, MethodSpec};
 use crate::free_motion::GelParams;
 use crate::step::{Insertion, Interaction, StepParams};
 use needle_core::inverse::InverseParams;
@@ -105,6 +105,15 @@ pub(super) fn default_h() -> f64 {
 }
 pub(super) fn default_background() -> bool {
     true
+}
+pub(super) fn default_gel_solve() -> GelSolveSpec {
+    GelSolveSpec::Direct
+}
+pub(super) fn default_pcg_tolerance() -> f64 {
+    1e-3
+}
+pub(super) fn default_pcg_max_iterations() -> u32 {
+    30
 }
 
 pub(super) fn default_samples() -> usize {

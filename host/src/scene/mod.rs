@@ -392,6 +392,10 @@ impl Default for InverseSpec {
     }
 }
 
+/// With `solver.gel_solve = "pcg"`, the default `refactor_every`: the preconditioner is
+/// refreshed at most every this many steps.
+pub const PCG_REFACTOR_EVERY: u32 = 8;
+
 /// Numerical settings of the host's FE solve and the core's Gauss-Seidel.
 #[derive(Clone, Copy, Debug, Deserialize, Serialize, PartialEq)]
 #[serde(deny_unknown_fields)]
@@ -416,13 +420,42 @@ pub struct SolverSpec {
     /// `refactor_every` steps later (the Newton matrix is then a few steps old).
     #[serde(default = "default_background")]
     pub background_factorization: bool,
+    /// How the gel's free motion solves its Newton system: `"direct"` with the factor
+    /// (refreshed as `refactor_every` and `background_factorization` say), or `"pcg"`:
+    /// conjugate gradients on each step's own matrix, preconditioned by the factor in use,
+    /// which is refreshed at most every `refactor_every` steps (in the background, never waited
+    /// for, with `background_factorization`).
+    #[serde(default = "default_gel_solve")]
+    pub gel_solve: GelSolveSpec,
+    /// `"pcg"`: stop when the relative residual `‖b − A Δx‖ / ‖b‖` is below this [-].
+    #[serde(default = "default_pcg_tolerance")]
+    pub pcg_tolerance: f64,
+    /// `"pcg"`: iteration cap; a step that reaches it factorises its own matrix at once.
+    #[serde(default = "default_pcg_max_iterations")]
+    pub pcg_max_iterations: u32,
+}
+
+/// How the gel's free motion solves its Newton system (`solver.gel_solve`).
+#[derive(Clone, Copy, Debug, Deserialize, Serialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum GelSolveSpec {
+    /// A solve with the factor (the exact Newton step when it is factorised every step,
+    /// synchronously).
+    Direct,
+    /// Preconditioned conjugate gradients with the factor in use as preconditioner.
+    Pcg,
 }
 
 impl SolverSpec {
-    /// `refactor_every` as set, or its default: 2 with the background factorisation, 1 without.
+    /// `refactor_every` as set, or its default: with `gel_solve = "direct"`, 2 with the
+    /// background factorisation and 1 without; with `"pcg"`, [`PCG_REFACTOR_EVERY`].
     pub fn refactor_every(&self) -> u32 {
         self.refactor_every
-            .unwrap_or(if self.background_factorization { 2 } else { 1 })
+            .unwrap_or(match (self.gel_solve, self.background_factorization) {
+                (GelSolveSpec::Pcg, _) => PCG_REFACTOR_EVERY,
+                (GelSolveSpec::Direct, true) => 2,
+                (GelSolveSpec::Direct, false) => 1,
+            })
     }
 }
 
@@ -434,6 +467,9 @@ impl Default for SolverSpec {
             time_step: default_h(),
             refactor_every: None,
             background_factorization: default_background(),
+            gel_solve: default_gel_solve(),
+            pcg_tolerance: default_pcg_tolerance(),
+            pcg_max_iterations: default_pcg_max_iterations(),
         }
     }
 }

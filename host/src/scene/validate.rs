@@ -358,6 +358,13 @@ impl Scene {
         if s.refactor_every == Some(0) {
             return fail("solver.refactor_every", "must be ≥ 1");
         }
+        within("solver.pcg_tolerance", s.pcg_tolerance, 1e-14, 0.5, "")?;
+        if !(1..=10_000).contains(&s.pcg_max_iterations) {
+            return fail(
+                "solver.pcg_max_iterations",
+                format!("must be between 1 and 10000 (got {})", s.pcg_max_iterations),
+            );
+        }
         Ok(())
     }
 
