@@ -176,7 +176,7 @@ mod tests {
     }
 }
 
-/// Runtime detection of AVX2 on x86-64 (cached), so the hot loops can be compiled twice —
+/// Runtime detection of AVX2 and AVX-512F on x86-64 (cached), so the hot loops can be compiled twice —
 /// baseline x86-64 (SSE2) and AVX2 — and the right copy picked at run time without
 /// `-C target-cpu`. Uses only `core` (cpuid, xgetbv): no std.
 #[cfg(target_arch = "x86_64")]
@@ -185,24 +185,39 @@ pub(crate) mod simd {
 
     static LEVEL: AtomicU8 = AtomicU8::new(0);
 
-    /// Whether the CPU and the OS support AVX2 (YMM state enabled).
+    /// No AVX2.
+    const BASELINE: u8 = 1;
+    /// AVX2 (YMM state enabled).
+    const AVX2: u8 = 2;
+    /// AVX2 and AVX-512F (ZMM and mask state enabled too).
+    const AVX512: u8 = 3;
+
+    /// The detected level (cached).
     #[inline]
-    pub(crate) fn has_avx2() -> bool {
-        if cfg!(target_feature = "avx2") {
-            return true;
-        }
+    fn level() -> u8 {
         match LEVEL.load(Ordering::Relaxed) {
-            1 => false,
-            2 => true,
-            _ => {
+            0 => {
                 let v = detect();
-                LEVEL.store(if v { 2 } else { 1 }, Ordering::Relaxed);
+                LEVEL.store(v, Ordering::Relaxed);
                 v
             }
+            v => v,
         }
     }
 
-    fn detect() -> bool {
+    /// Whether the CPU and the OS support AVX2 (YMM state enabled).
+    #[inline]
+    pub(crate) fn has_avx2() -> bool {
+        cfg!(target_feature = "avx2") || level() >= AVX2
+    }
+
+    /// Whether the CPU and the OS support AVX-512F besides AVX2.
+    #[inline]
+    pub(crate) fn has_avx512() -> bool {
+        level() >= AVX512
+    }
+
+    fn detect() -> u8 {
         use core::arch::x86_64::{__cpuid, __cpuid_count};
         // `cpuid` exists on every x86-64 CPU.
         #[allow(unused_unsafe)]
@@ -210,22 +225,43 @@ pub(crate) mod simd {
         let osxsave = l1.ecx & (1 << 27) != 0;
         let avx = l1.ecx & (1 << 28) != 0;
         if !(osxsave && avx) {
-            return false;
+            return BASELINE;
         }
         // SAFETY: OSXSAVE is set, so `xgetbv` is enabled by the OS.
         let xcr0 = unsafe { xgetbv0() };
         if xcr0 & 0b110 != 0b110 {
-            return false;
+            return BASELINE;
         }
         #[allow(unused_unsafe)]
         let l7 = unsafe { __cpuid_count(7, 0) };
-        l7.ebx & (1 << 5) != 0
+        if l7.ebx & (1 << 5) == 0 {
+            return BASELINE;
+        }
+        // AVX-512F, and the OS saves the opmask and both halves of the ZMM registers.
+        if l7.ebx & (1 << 16) != 0 && xcr0 & 0b1110_0000 == 0b1110_0000 {
+            AVX512
+        } else {
+            AVX2
+        }
     }
 
     #[target_feature(enable = "xsave")]
     unsafe fn xgetbv0() -> u64 {
         // SAFETY: the caller checked OSXSAVE.
         unsafe { core::arch::x86_64::_xgetbv(0) }
+    }
+}
+
+/// Whether the AVX-512 copy of the sweep may run.
+#[inline]
+pub(crate) fn use_avx512() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        simd::has_avx512()
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
     }
 }
 

@@ -115,34 +115,45 @@ impl<const M: usize> BlockGs<M> {
         }
     }
 
-    /// One sweep, with the AVX2 copy of the loops when the CPU has it (same arithmetic, so
-    /// the same result up to the order of the additions inside `dot`).
+    /// One sweep, with the AVX-512 or the AVX2 copy of the loops when the CPU has it (the same
+    /// operations on wider vectors: the same result).
     fn sweep_dispatch(&mut self, w: &[[f64; M]; M], lambda: &mut [f64; M], omega: f64) -> f64 {
+        #[cfg(target_arch = "x86_64")]
+        if crate::math::use_avx512() {
+            // SAFETY: AVX-512F support was checked at run time.
+            return unsafe { self.sweep_avx512(w, lambda, omega) };
+        }
         #[cfg(target_arch = "x86_64")]
         if crate::math::use_avx2() {
             // SAFETY: AVX2 support was checked at run time.
             return unsafe { self.sweep_avx2(w, lambda, omega) };
         }
-        self.sweep(w, lambda, omega)
+        self.sweep(w, lambda, omega, 4)
     }
 
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
     unsafe fn sweep_avx2(&mut self, w: &[[f64; M]; M], lambda: &mut [f64; M], omega: f64) -> f64 {
-        self.sweep(w, lambda, omega)
+        self.sweep(w, lambda, omega, 4)
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f")]
+    unsafe fn sweep_avx512(&mut self, w: &[[f64; M]; M], lambda: &mut [f64; M], omega: f64) -> f64 {
+        self.sweep(w, lambda, omega, 8)
     }
 
     /// One sweep over every group; returns the largest `|W_ii Δλ_i|`. Each group computes its
     /// update from its own diagonal block, then applies it to `w` in one fused pass over the
     /// group's rows of `W` (one read-modify-write of `w` per group, not per row).
     #[inline(always)]
-    fn sweep(&mut self, w: &[[f64; M]; M], lambda: &mut [f64; M], omega: f64) -> f64 {
+    fn sweep(&mut self, w: &[[f64; M]; M], lambda: &mut [f64; M], omega: f64, lanes: usize) -> f64 {
         let mut s = Sweep {
             w,
             res: &mut self.w,
             lambda,
             diag: &self.diag,
-            m: self.m,
+            m: padded(self.m, lanes, M),
             change: 0.0,
         };
         for b in &self.blocks[..self.n_blocks] {
@@ -165,6 +176,16 @@ impl<const M: usize> BlockGs<M> {
     }
 }
 
+/// The length of the residual a sweep updates: the `m` used rows rounded up to whole vectors
+/// of `lanes` when the capacity `cap` allows. Rows `m..` of the residual are never read, so the
+/// vector loops may update them too (with whatever `W` holds there) rather than finish the used
+/// rows one by one; rows `..m` get exactly the same operations.
+#[inline(always)]
+fn padded(m: usize, lanes: usize, cap: usize) -> usize {
+    let p = m.next_multiple_of(lanes);
+    if p <= cap { p } else { m }
+}
+
 /// What one sweep updates: `λ`, the residual `w = W λ − δ` kept in step with it, and the largest
 /// `|W_ii Δλ_i|` so far. Each method is the exact local update of one group kind, `f` its packed
 /// factors (from `prepare`), `s` its first row.
@@ -173,6 +194,7 @@ struct Sweep<'a, const M: usize> {
     res: &'a mut [f64; M],
     lambda: &'a mut [f64; M],
     diag: &'a [f64; M],
+    /// Rows of the residual updated ([`padded`]).
     m: usize,
     change: f64,
 }
