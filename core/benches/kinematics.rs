@@ -1,7 +1,7 @@
 //! Forward kinematics and Jacobians of the RV-1A.
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use needle_core::kinematics::{DhChain, Pose};
+use needle_core::kinematics::{DhChain, Kinematics, Pose};
 use std::hint::black_box;
 
 fn bench(c: &mut Criterion) {

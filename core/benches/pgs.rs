@@ -5,7 +5,7 @@
 use criterion::{Criterion, criterion_group, criterion_main};
 use needle_core::constraint::{BlockGs, GsParams};
 use needle_core::inverse::base_violation;
-use needle_core::kinematics::DhChain;
+use needle_core::kinematics::{DhChain, Kinematics};
 use std::hint::black_box;
 
 mod common;

@@ -9,7 +9,7 @@
 //! limits. It places the needle at the start of a scene; the naive (rigid) baseline follows a
 //! path with it.
 
-use crate::kinematics::DhChain;
+use crate::kinematics::Kinematics;
 use core::fmt;
 use nalgebra::{SMatrix, SVector, Vector3};
 
@@ -94,7 +94,7 @@ impl core::error::Error for IkError {}
 ///
 /// # Example
 /// ```
-/// use needle_core::{DhChain, IkParams, solve_ik};
+/// use needle_core::{DhChain, IkParams, Kinematics, solve_ik};
 ///
 /// let chain = DhChain::rv1a();
 /// let goal = chain.tool_pose(&[0.2, 0.4, 2.0, 0.3, 0.6, -0.5]); // a reachable needle-base pose
@@ -107,7 +107,7 @@ impl core::error::Error for IkError {}
 /// # Ok::<(), needle_core::IkError>(())
 /// ```
 pub fn solve_ik<const N: usize>(
-    chain: &DhChain<N>,
+    chain: &impl Kinematics<N>,
     position: [f64; 3],
     axis: [f64; 3],
     seed: &[f64; N],
@@ -271,6 +271,7 @@ fn damped_step<const N: usize>(
 #[allow(clippy::expect_used, clippy::unwrap_used, clippy::panic)]
 mod tests {
     use super::*;
+    use crate::kinematics::DhChain;
     use crate::synthetic::Rng;
 
     /// Random reachable targets (FK of random joints inside the limits) are reached from the

@@ -6,6 +6,7 @@
 //! frame: rows `[vx, vy, vz]` in mm/rad and `[wx, wy, wz]` in rad/rad, column `i` being
 //! `[z_{i-1} × (p − o_{i-1}); z_{i-1}]` with `z_{i-1}`, `o_{i-1}` the axis and origin of joint `i`.
 
+use crate::serial_chain::SerialChain;
 use core::f64::consts::{FRAC_PI_2, PI};
 use nalgebra::{Matrix3, SMatrix, Vector3};
 
@@ -135,9 +136,10 @@ impl JointLimit {
         }
     }
 
-    /// Mid-range joint value [rad].
+    /// Mid-range joint value [rad]; 0 for a joint without finite limits (continuous).
     pub fn mid(&self) -> f64 {
-        0.5 * (self.lower + self.upper)
+        let m = 0.5 * (self.lower + self.upper);
+        if m.is_finite() { m } else { 0.0 }
     }
 }
 
@@ -197,13 +199,29 @@ impl DhChain<6> {
     }
 }
 
-impl<const N: usize> DhChain<N> {
+/// The kinematics of a serial chain of `N` revolute joints, however it is written (a DH table,
+/// joint origins and axes): the link transforms and joint axes, the base and tool transforms and
+/// the joint limits. Forward kinematics, the Jacobian and the limit helpers are written once, on
+/// these.
+pub trait Kinematics<const N: usize> {
+    /// World ← robot base [mm].
+    fn base(&self) -> &Pose;
+    /// Last link ← tool (needle base) [mm].
+    fn tool(&self) -> &Pose;
+    /// Joint position and speed limits.
+    fn limits(&self) -> &[JointLimit; N];
+    /// Link transform of joint `i` (previous link frame ← link `i`'s frame) at joint value `q`.
+    fn link(&self, i: usize, q: f64) -> Pose;
+    /// Unit axis and a point of joint `i` in the world frame, given the world pose `prev` of the
+    /// link frame before it (the base for joint 0).
+    fn joint_axis(&self, i: usize, prev: &Pose) -> (Vector3<f64>, Vector3<f64>);
+
     /// World poses of every link frame, `frames[i] = base · T_1 ⋯ T_{i+1}`; returns the flange
     /// pose (`frames[N-1]`, or `base` when `N = 0`).
-    pub fn link_frames(&self, q: &[f64; N], frames: &mut [Pose; N]) -> Pose {
-        let mut t = self.base;
+    fn link_frames(&self, q: &[f64; N], frames: &mut [Pose; N]) -> Pose {
+        let mut t = *self.base();
         for i in 0..N {
-            t = t.compose(&self.joints[i].transform(q[i]));
+            t = t.compose(&self.link(i, q[i]));
             frames[i] = t;
         }
         t
@@ -213,7 +231,7 @@ impl<const N: usize> DhChain<N> {
     ///
     /// # Example
     /// ```
-    /// use needle_core::DhChain;
+    /// use needle_core::{DhChain, Kinematics};
     ///
     /// let rv1a = DhChain::rv1a();
     /// let home = rv1a.flange_pose(&[0.0; 6]);
@@ -221,17 +239,17 @@ impl<const N: usize> DhChain<N> {
     /// // The needle base is the flange until a tool transform is set.
     /// assert_eq!(rv1a.tool_pose(&[0.0; 6]), home);
     /// ```
-    pub fn flange_pose(&self, q: &[f64; N]) -> Pose {
-        let mut t = self.base;
+    fn flange_pose(&self, q: &[f64; N]) -> Pose {
+        let mut t = *self.base();
         for i in 0..N {
-            t = t.compose(&self.joints[i].transform(q[i]));
+            t = t.compose(&self.link(i, q[i]));
         }
         t
     }
 
     /// Needle base (tool) pose `B(q) = E(q) · T_EB` in the world frame.
-    pub fn tool_pose(&self, q: &[f64; N]) -> Pose {
-        self.flange_pose(q).compose(&self.tool)
+    fn tool_pose(&self, q: &[f64; N]) -> Pose {
+        self.flange_pose(q).compose(self.tool())
     }
 
     /// Geometric Jacobian of the point `p` [mm, world] rigidly attached to the last link, given
@@ -239,12 +257,12 @@ impl<const N: usize> DhChain<N> {
     fn jacobian_at(&self, frames: &[Pose; N], p: &Vector3<f64>) -> SMatrix<f64, 6, N> {
         let mut jac = SMatrix::<f64, 6, N>::zeros();
         for i in 0..N {
-            let prev = if i == 0 { &self.base } else { &frames[i - 1] };
-            let z = prev.z_axis();
-            let v = z.cross(&(p - prev.translation));
+            let prev = if i == 0 { self.base() } else { &frames[i - 1] };
+            let (w, o) = self.joint_axis(i, prev);
+            let v = w.cross(&(p - o));
             for r in 0..3 {
                 jac[(r, i)] = v[r];
-                jac[(r + 3, i)] = z[r];
+                jac[(r + 3, i)] = w[r];
             }
         }
         jac
@@ -252,7 +270,7 @@ impl<const N: usize> DhChain<N> {
 
     /// Geometric Jacobian (6×N, world frame) of the flange origin: rows vx, vy, vz [mm/rad],
     /// wx, wy, wz [rad/rad].
-    pub fn jacobian_flange(&self, q: &[f64; N]) -> SMatrix<f64, 6, N> {
+    fn jacobian_flange(&self, q: &[f64; N]) -> SMatrix<f64, 6, N> {
         let mut frames = [Pose::identity(); N];
         let e = self.link_frames(q, &mut frames);
         self.jacobian_at(&frames, &e.translation)
@@ -263,7 +281,7 @@ impl<const N: usize> DhChain<N> {
     ///
     /// # Example
     /// ```
-    /// use needle_core::DhChain;
+    /// use needle_core::{DhChain, Kinematics};
     ///
     /// let chain = DhChain::rv1a();
     /// let q = [0.1, 0.3, 2.0, 0.0, 0.5, 0.0];
@@ -278,23 +296,23 @@ impl<const N: usize> DhChain<N> {
     ///     assert!((v[r] - jac[(r, 1)]).abs() < 1e-4); // mm/rad
     /// }
     /// ```
-    pub fn jacobian_tool(&self, q: &[f64; N]) -> (SMatrix<f64, 6, N>, Pose) {
+    fn jacobian_tool(&self, q: &[f64; N]) -> (SMatrix<f64, 6, N>, Pose) {
         let mut frames = [Pose::identity(); N];
-        let b = self.link_frames(q, &mut frames).compose(&self.tool);
+        let b = self.link_frames(q, &mut frames).compose(self.tool());
         (self.jacobian_at(&frames, &b.translation), b)
     }
 
     /// Whether every joint is within its position limits (inclusive) and finite.
-    pub fn within_limits(&self, q: &[f64; N]) -> bool {
+    fn within_limits(&self, q: &[f64; N]) -> bool {
         q.iter()
-            .zip(&self.limits)
+            .zip(self.limits())
             .all(|(&v, l)| v >= l.lower && v <= l.upper)
     }
 
     /// Clamps `q` into the position limits; returns `true` when any joint was moved.
-    pub fn clamp_to_limits(&self, q: &mut [f64; N]) -> bool {
+    fn clamp_to_limits(&self, q: &mut [f64; N]) -> bool {
         let mut clamped = false;
-        for (v, l) in q.iter_mut().zip(&self.limits) {
+        for (v, l) in q.iter_mut().zip(self.limits()) {
             // Not `f64::clamp`: it panics on inverted or NaN bounds, and limits are user data.
             let c = v.max(l.lower).min(l.upper);
             if c != *v {
@@ -306,12 +324,122 @@ impl<const N: usize> DhChain<N> {
     }
 
     /// Mid-range joint vector [rad].
-    pub fn mid_range(&self) -> [f64; N] {
+    fn mid_range(&self) -> [f64; N] {
         let mut q = [0.0; N];
-        for (v, l) in q.iter_mut().zip(&self.limits) {
+        for (v, l) in q.iter_mut().zip(self.limits()) {
             *v = l.mid();
         }
         q
+    }
+
+    /// The smallest distance of a joint to one of its position limits, and that joint [rad]
+    /// (negative outside the limits; `+∞` when no joint has a finite limit).
+    fn limit_margin(&self, q: &[f64; N]) -> (f64, usize) {
+        let mut best = (f64::INFINITY, 0);
+        for (i, (v, l)) in q.iter().zip(self.limits()).enumerate() {
+            let m = (v - l.lower).min(l.upper - v);
+            if m < best.0 {
+                best = (m, i);
+            }
+        }
+        best
+    }
+}
+
+impl<const N: usize> Kinematics<N> for DhChain<N> {
+    fn base(&self) -> &Pose {
+        &self.base
+    }
+    fn tool(&self) -> &Pose {
+        &self.tool
+    }
+    fn limits(&self) -> &[JointLimit; N] {
+        &self.limits
+    }
+    #[inline]
+    fn link(&self, i: usize, q: f64) -> Pose {
+        self.joints[i].transform(q)
+    }
+    /// Joint `i` turns about the z axis of DH frame `i − 1`.
+    #[inline]
+    fn joint_axis(&self, _i: usize, prev: &Pose) -> (Vector3<f64>, Vector3<f64>) {
+        (prev.z_axis(), prev.translation)
+    }
+}
+
+/// The robot a controller steers: a DH table (the RV-1A preset, a `[robot]` table) or a general
+/// serial chain (a URDF). Each keeps its own arithmetic, so a DH robot's results do not depend on
+/// the general form existing.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[repr(C, u8)]
+pub enum Robot<const N: usize> {
+    /// Standard Denavit–Hartenberg.
+    Dh(DhChain<N>) = 0,
+    /// Joint origins and axes (URDF).
+    Serial(SerialChain<N>) = 1,
+}
+
+// SAFETY: `repr(C, u8)`: a `u8` tag then the variant's fields. All-zero bytes are tag 0, the
+// `Dh` variant, over an all-zero `DhChain`, which is `Zeroable`.
+unsafe impl<const N: usize> crate::zeroed::Zeroable for Robot<N> {}
+const _: () = {
+    #[allow(dead_code)]
+    fn variant_zero_is_zeroable<const N: usize>(c: &DhChain<N>) {
+        crate::zeroed::require_zeroable(c);
+    }
+};
+
+impl<const N: usize> From<DhChain<N>> for Robot<N> {
+    fn from(c: DhChain<N>) -> Self {
+        Self::Dh(c)
+    }
+}
+
+impl<const N: usize> From<SerialChain<N>> for Robot<N> {
+    fn from(c: SerialChain<N>) -> Self {
+        Self::Serial(c)
+    }
+}
+
+/// Calls `$f` on the chain inside a [`Robot`].
+macro_rules! dispatch {
+    ($self:ident, $c:ident => $e:expr) => {
+        match $self {
+            Robot::Dh($c) => $e,
+            Robot::Serial($c) => $e,
+        }
+    };
+}
+
+impl<const N: usize> Kinematics<N> for Robot<N> {
+    fn base(&self) -> &Pose {
+        dispatch!(self, c => c.base())
+    }
+    fn tool(&self) -> &Pose {
+        dispatch!(self, c => c.tool())
+    }
+    fn limits(&self) -> &[JointLimit; N] {
+        dispatch!(self, c => c.limits())
+    }
+    fn link(&self, i: usize, q: f64) -> Pose {
+        dispatch!(self, c => c.link(i, q))
+    }
+    fn joint_axis(&self, i: usize, prev: &Pose) -> (Vector3<f64>, Vector3<f64>) {
+        dispatch!(self, c => c.joint_axis(i, prev))
+    }
+    // The loops once per call, not a match per joint.
+    fn tool_pose(&self, q: &[f64; N]) -> Pose {
+        dispatch!(self, c => c.tool_pose(q))
+    }
+    fn jacobian_tool(&self, q: &[f64; N]) -> (SMatrix<f64, 6, N>, Pose) {
+        dispatch!(self, c => c.jacobian_tool(q))
+    }
+}
+
+impl<const N: usize> Robot<N> {
+    /// Joint limits, mutable (e.g. a scene's overrides).
+    pub fn limits_mut(&mut self) -> &mut [JointLimit; N] {
+        dispatch!(self, c => &mut c.limits)
     }
 }
 

@@ -26,7 +26,7 @@ pub mod zeroed;
 pub use constraint::{ActiveSet, BlockGs, GsParams, SolveReport};
 pub use ik::{IkError, IkParams, IkReport, solve_ik};
 pub use inverse::{Controller, InverseParams, JacobianMode, Objective, StepError};
-pub use kinematics::{DhChain, DhJoint, JointLimit, Pose};
+pub use kinematics::{DhChain, DhJoint, JointLimit, Kinematics, Pose, Robot};
 pub use payload::{
     Command, ComplianceFrame, GroupKind, NCLEAR, NOBS, ObsIndex, RowGroup, SolverReport,
     StatusFlags, VERSION, ValidationError,

@@ -10,8 +10,8 @@
 //! frame, rows `[vx, vy, vz]` in mm/rad and `[wx, wy, wz]` in rad/rad, column `i` being
 //! `[w_i × (p − o_i); w_i]` with `w_i`, `o_i` joint `i`'s axis and origin in the world frame.
 
-use crate::kinematics::{DhChain, Pose};
-use nalgebra::{Matrix3, SMatrix, Vector3};
+use crate::kinematics::{DhChain, JointLimit, Kinematics, Pose};
+use nalgebra::{Matrix3, Vector3};
 
 /// One revolute joint: its fixed origin transform and its rotation axis.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -64,14 +64,21 @@ pub struct SerialChain<const N: usize> {
     pub base: Pose,
     /// Last joint's child link ← tool frame [mm] (fixed joints after the last movable one).
     pub tool: Pose,
+    /// Joint position and speed limits (±∞ for a continuous joint).
+    pub limits: [JointLimit; N],
 }
 
-crate::zeroed::impl_zeroable!(SerialChain<const N> { joints, base, tool });
+crate::zeroed::impl_zeroable!(SerialChain<const N> {
+    joints,
+    base,
+    tool,
+    limits
+});
 
 impl<const N: usize> SerialChain<N> {
     /// The same kinematics as a DH chain: joint `i` turns about the z axis of DH frame `i − 1`,
     /// and DH link `i`'s fixed part `Rz(θ_i) Tz(d_i) Tx(a_i) Rx(α_i)` becomes the origin of joint
-    /// `i + 1` (of the tool for the last link). Joint limits are not part of a [`SerialChain`].
+    /// `i + 1` (of the tool for the last link); the limits are the table's.
     pub fn from_dh(dh: &DhChain<N>) -> Self {
         let mut joints = [SerialJoint {
             origin: Pose::identity(),
@@ -87,6 +94,7 @@ impl<const N: usize> SerialChain<N> {
             joints,
             base: dh.base,
             tool: carry.compose(&dh.tool),
+            limits: dh.limits,
         }
     }
 
@@ -96,79 +104,29 @@ impl<const N: usize> SerialChain<N> {
             .iter()
             .all(|j| (j.axis.norm_squared() - 1.0).abs() < 1e-9)
     }
+}
 
-    /// World poses of every joint frame after its rotation (`frames[i] = base · T_1 ⋯ T_{i+1}`);
-    /// returns the last one (`base` when `N = 0`).
-    pub fn link_frames(&self, q: &[f64; N], frames: &mut [Pose; N]) -> Pose {
-        let mut t = self.base;
-        for i in 0..N {
-            t = t.compose(&self.joints[i].transform(q[i]));
-            frames[i] = t;
-        }
-        t
+impl<const N: usize> Kinematics<N> for SerialChain<N> {
+    fn base(&self) -> &Pose {
+        &self.base
     }
-
-    /// Pose of the last joint's child link in the world frame (the flange when the tool is
-    /// separate).
-    pub fn flange_pose(&self, q: &[f64; N]) -> Pose {
-        let mut t = self.base;
-        for i in 0..N {
-            t = t.compose(&self.joints[i].transform(q[i]));
-        }
-        t
+    fn tool(&self) -> &Pose {
+        &self.tool
     }
-
-    /// Tool pose `B(q) = base · T_1 ⋯ T_N · tool` in the world frame.
-    pub fn tool_pose(&self, q: &[f64; N]) -> Pose {
-        self.flange_pose(q).compose(&self.tool)
+    fn limits(&self) -> &[JointLimit; N] {
+        &self.limits
     }
-
-    /// Geometric Jacobian (6×N, world frame) of the tool origin: rows vx, vy, vz [mm/rad], wx, wy,
-    /// wz [rad/rad]. Also returns the tool pose.
-    ///
-    /// # Example
-    /// ```
-    /// use needle_core::{DhChain, SerialChain};
-    ///
-    /// let chain = SerialChain::from_dh(&DhChain::rv1a());
-    /// let q = [0.1, 0.3, 2.0, 0.0, 0.5, 0.0];
-    /// let (jac, _) = chain.jacobian_tool(&q);
-    /// let h = 1e-5;
-    /// let (mut qp, mut qm) = (q, q);
-    /// qp[1] += h;
-    /// qm[1] -= h;
-    /// let v = (chain.tool_pose(&qp).translation - chain.tool_pose(&qm).translation) / (2.0 * h);
-    /// for r in 0..3 {
-    ///     assert!((v[r] - jac[(r, 1)]).abs() < 1e-4); // mm/rad
-    /// }
-    /// ```
-    pub fn jacobian_tool(&self, q: &[f64; N]) -> (SMatrix<f64, 6, N>, Pose) {
-        // Joint frames before their rotation: the rotation leaves the axis and origin unchanged.
-        let mut axes = [Vector3::zeros(); N];
-        let mut origins = [Vector3::zeros(); N];
-        let mut t = self.base;
-        for i in 0..N {
-            let j = &self.joints[i];
-            let f = t.compose(&j.origin);
-            axes[i] = f.rotation * j.axis;
-            origins[i] = f.translation;
-            t = Pose {
-                rotation: f.rotation * axis_angle(&j.axis, q[i]),
-                translation: f.translation,
-            };
-        }
-        let b = t.compose(&self.tool);
-        let p = b.translation;
-        let mut jac = SMatrix::<f64, 6, N>::zeros();
-        for i in 0..N {
-            let w = axes[i];
-            let v = w.cross(&(p - origins[i]));
-            for r in 0..3 {
-                jac[(r, i)] = v[r];
-                jac[(r + 3, i)] = w[r];
-            }
-        }
-        (jac, b)
+    #[inline]
+    fn link(&self, i: usize, q: f64) -> Pose {
+        self.joints[i].transform(q)
+    }
+    /// The joint frame before its rotation is `prev · O_i`; the rotation leaves the axis and the
+    /// origin unchanged.
+    #[inline]
+    fn joint_axis(&self, i: usize, prev: &Pose) -> (Vector3<f64>, Vector3<f64>) {
+        let j = &self.joints[i];
+        let f = prev.compose(&j.origin);
+        (f.rotation * j.axis, f.translation)
     }
 }
 

@@ -10,7 +10,7 @@
 //!
 //! Both frames work for any joint count `N` of the chain.
 
-use crate::kinematics::{DhChain, Pose};
+use crate::kinematics::{DhChain, Kinematics, Pose};
 use crate::kinematics::{DhJoint, JointLimit};
 use crate::payload::{BASE_ROWS, ComplianceFrame, NOBS, ObsIndex, RowGroup, VERSION};
 use nalgebra::{Matrix3, Vector3};
@@ -120,7 +120,7 @@ fn rigid_tip(free: &Pose, b: &Pose, length: f64) -> (Vector3<f64>, Vector3<f64>)
 /// ```
 pub fn rigid_needle_frame<const M: usize, const N: usize>(
     frame: &mut ComplianceFrame<M, N>,
-    chain: &DhChain<N>,
+    chain: &impl Kinematics<N>,
     q_free: &[f64; N],
     q_target: &[f64; N],
     length: f64,
@@ -172,7 +172,7 @@ pub fn rigid_needle_frame<const M: usize, const N: usize>(
 /// random violations and observation rows; the needle base rests near `B(q)`.
 pub fn random_frame<const M: usize, const N: usize>(
     frame: &mut ComplianceFrame<M, N>,
-    chain: &DhChain<N>,
+    chain: &impl Kinematics<N>,
     q: &[f64; N],
     m: usize,
     seed: u64,

@@ -36,6 +36,14 @@ impl std::fmt::Display for Body {
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum SetupError {
+    /// The scene's robot cannot be built (its URDF).
+    #[error("robot: field `{field}`: {reason}")]
+    Robot {
+        /// The scene field.
+        field: String,
+        /// Why (naming the URDF file).
+        reason: String,
+    },
     /// The planned path could not be sampled.
     #[error("the path cannot be sampled")]
     Path(#[source] PathError),

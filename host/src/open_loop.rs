@@ -8,7 +8,7 @@
 use crate::step::ROWS;
 use needle_bridge::{ExchangeReport, Transport, TransportError};
 use needle_core::inverse::{Controller, InverseParams, StepError};
-use needle_core::kinematics::DhChain;
+use needle_core::kinematics::Robot;
 use needle_core::payload::{Command, ComplianceFrame, JOINTS};
 use std::time::Instant;
 
@@ -41,7 +41,7 @@ pub struct OpenLoop {
 
 impl OpenLoop {
     /// An open loop for `chain` with the solver tuning of `params`, replaying `joints`.
-    pub fn new(chain: DhChain<JOINTS>, params: InverseParams, joints: Vec<[f64; JOINTS]>) -> Self {
+    pub fn new(chain: Robot<JOINTS>, params: InverseParams, joints: Vec<[f64; JOINTS]>) -> Self {
         Self {
             controller: Controller::new_boxed(chain, params),
             joints,

@@ -21,7 +21,7 @@ use crate::world::{World, WorldParts, node_frame_offset};
 use nalgebra::{Isometry3, Rotation3, Translation3, UnitQuaternion, Vector3};
 use needle_core::ik::{IkParams, solve_ik};
 use needle_core::inverse::InverseParams;
-use needle_core::kinematics::DhChain;
+use needle_core::kinematics::{Kinematics as _, Robot};
 use needle_core::payload::JOINTS;
 
 /// What a run of a scene plans, besides the simulation.
@@ -44,7 +44,7 @@ pub struct Setup {
     /// The step's tuning.
     pub params: StepParams,
     /// The robot (as the core sees it).
-    pub robot: DhChain<JOINTS>,
+    pub robot: Robot<JOINTS>,
     /// The core's tuning.
     pub inverse: InverseParams,
     /// What a run plans.
@@ -88,7 +88,7 @@ impl Setup {
             }
         })?;
         let q = start_joints(scene)?;
-        let robot = scene.robot();
+        let robot = scene.robot().map_err(robot_error)?;
         let needle = start_needle(scene, &robot, &q)?;
         let obstacles = scene
             .obstacles
@@ -123,8 +123,16 @@ impl Setup {
 }
 
 /// The robot and the core's tuning of `scene` (what `needle-controller` needs).
-pub fn core(scene: &Scene) -> (DhChain<JOINTS>, InverseParams) {
-    (scene.robot(), scene.inverse_params())
+///
+/// # Errors
+/// [`SetupError::Robot`] when the scene's URDF cannot be read as a 6-joint chain.
+pub fn core(scene: &Scene) -> Result<(Robot<JOINTS>, InverseParams), SetupError> {
+    Ok((scene.robot().map_err(robot_error)?, scene.inverse_params()))
+}
+
+/// The error of [`Scene::robot`] as a setup error.
+fn robot_error((field, reason): (String, String)) -> SetupError {
+    SetupError::Robot { field, reason }
 }
 
 /// The step's tuning of `scene`.
@@ -336,7 +344,7 @@ pub fn start_joints(scene: &Scene) -> Result<[f64; JOINTS], SetupError> {
         }
         return Ok(out);
     }
-    let chain = scene.robot();
+    let chain = scene.robot().map_err(robot_error)?;
     let path = scene.sampled_path().map_err(SetupError::Path)?;
     let t = path.entry_tangent();
     let base = path.start_tip() - scene.needle.length * t;
@@ -366,7 +374,7 @@ pub fn start_joints(scene: &Scene) -> Result<[f64; JOINTS], SetupError> {
 /// `CorotationalBeams::set_geometric_stiffness`).
 fn start_needle(
     scene: &Scene,
-    robot: &DhChain<JOINTS>,
+    robot: &Robot<JOINTS>,
     q: &[f64; JOINTS],
 ) -> Result<NeedleModel, SetupError> {
     let b = robot.tool_pose(q);

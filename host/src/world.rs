@@ -11,7 +11,7 @@ use crate::free_motion::{GelModel, NeedleModel};
 use crate::proximity::{Embedded, TetLocator};
 use crate::scene::SampledPath;
 use nalgebra::{Matrix3, Rotation3, Vector3};
-use needle_core::kinematics::{DhChain, Pose};
+use needle_core::kinematics::{Kinematics, Pose, Robot};
 use needle_core::payload::JOINTS;
 
 /// A sliding point ψ: a gel material point the shaft must pass through.
@@ -26,7 +26,7 @@ pub struct SlidingPoint {
 /// What a [`World`] is built from (by [`crate::setup`], or by hand).
 pub struct WorldParts {
     /// The robot holding the needle.
-    pub robot: DhChain<JOINTS>,
+    pub robot: Robot<JOINTS>,
     /// The gel at rest.
     pub gel: GelModel,
     /// The needle at its start pose, base node 0 on `B(q)`.
@@ -44,7 +44,7 @@ pub struct WorldParts {
 /// The whole simulated system and its interaction state.
 pub struct World {
     /// The robot.
-    pub robot: DhChain<JOINTS>,
+    pub robot: Robot<JOINTS>,
     /// The gel.
     pub gel: GelModel,
     /// The needle: nodes `0..n`, base first, 6 dofs each (translation, then a world-frame

@@ -31,7 +31,7 @@ use core::time::Duration;
 use iceoryx2::node::NodeWaitFailure;
 use iceoryx2::prelude::*;
 use needle_core::inverse::{Controller, InverseParams};
-use needle_core::kinematics::DhChain;
+use needle_core::kinematics::Robot;
 use needle_core::payload::{Command, ComplianceFrame, JOINTS, ValidationError};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
@@ -232,10 +232,11 @@ impl<const M: usize> ControllerNode<M> {
     /// # Errors
     /// [`TransportError::Ipc`] when a node, service or port cannot be created.
     pub fn connect(
-        chain: DhChain<JOINTS>,
+        chain: impl Into<Robot<JOINTS>>,
         params: InverseParams,
         opts: &ControllerOptions,
     ) -> Result<Self, TransportError> {
+        let chain: Robot<JOINTS> = chain.into();
         let (node, dead) = create_node_cleaning("needle-controller", &opts.bridge)?;
         let mut hung = 0;
         let frames = frame_service_counting::<M>(&node, &opts.bridge, &mut hung)?
@@ -574,7 +575,7 @@ impl<const M: usize> ControllerNode<M> {
 /// # Errors
 /// As [`ControllerNode::connect`] and [`ControllerNode::run`].
 pub fn run_controller<const M: usize>(
-    chain: DhChain<JOINTS>,
+    chain: impl Into<Robot<JOINTS>>,
     params: InverseParams,
     opts: &ControllerOptions,
     stop: &AtomicBool,

@@ -17,7 +17,7 @@ use core::fmt::Write as _;
 use iceoryx2::prelude::ZeroCopySend;
 use needle_core::Zeroable;
 use needle_core::inverse::InverseParams;
-use needle_core::kinematics::DhChain;
+use needle_core::kinematics::Robot;
 use needle_core::payload::{
     COMMAND_TYPE_NAME, Command, ComplianceFrame, FRAME_TYPE_NAME, JOINTS, Payload,
 };
@@ -120,7 +120,8 @@ pub struct CommandHeader {
 /// A 64-bit fingerprint of a robot chain and inverse tuning (FNV-1a over their `Debug` text,
 /// which prints every `f64` exactly): both processes compute it from their own set-up, and a
 /// controller refuses frames from a host that expects another robot or another tuning.
-pub fn setup_fingerprint(chain: &DhChain<JOINTS>, params: &InverseParams) -> u64 {
+pub fn setup_fingerprint(chain: &(impl Into<Robot<JOINTS>> + Copy), params: &InverseParams) -> u64 {
+    let chain: Robot<JOINTS> = (*chain).into();
     let mut text = String::new();
     // Writing into a String cannot fail.
     let _ = write!(text, "{chain:?}|{params:?}");
@@ -189,6 +190,7 @@ pub fn copy_used<const M: usize>(src: &ComplianceFrame<M>, dst: &mut ComplianceF
 #[cfg(test)]
 mod tests {
     use super::*;
+    use needle_core::kinematics::DhChain;
     use needle_core::synthetic::random_frame;
 
     fn boxed<const M: usize>() -> Box<ComplianceFrame<M>> {

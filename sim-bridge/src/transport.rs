@@ -11,7 +11,7 @@
 use core::fmt;
 use core::time::Duration;
 use needle_core::inverse::{Controller, InverseParams, StepError};
-use needle_core::kinematics::DhChain;
+use needle_core::kinematics::Robot;
 use needle_core::payload::{Command, ComplianceFrame, JOINTS, ValidationError};
 use std::time::Instant;
 
@@ -117,9 +117,9 @@ pub struct InProcess<const M: usize> {
 impl<const M: usize> InProcess<M> {
     /// A core for `chain` with tuning `params` (the controller, ≈ 300 KiB at `M = 192`, is built
     /// in place on the heap).
-    pub fn new(chain: DhChain<JOINTS>, params: InverseParams) -> Self {
+    pub fn new(robot: impl Into<Robot<JOINTS>>, params: InverseParams) -> Self {
         Self {
-            controller: Controller::new_boxed(chain, params),
+            controller: Controller::new_boxed(robot, params),
         }
     }
 
@@ -147,6 +147,7 @@ impl<const M: usize> Transport<M> for InProcess<M> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use needle_core::kinematics::DhChain;
     use needle_core::synthetic::random_frame;
 
     /// The in-process transport is exactly the core's step.

@@ -156,7 +156,7 @@ fn a_host_without_controller_holds_the_insertion() {
     quiet_iceoryx();
     let scene = Scene::builtin("complex").expect("scene");
     let instance = unique_instance("nocore");
-    let setup = setup_fingerprint(&scene.robot(), &scene.inverse_params());
+    let setup = setup_fingerprint(&scene.robot().expect("robot"), &scene.inverse_params());
     let mut host = SharedMemoryHost::<ROWS>::connect(&config(&instance), setup).expect("host");
     let opts = RunOptions {
         steps: Some(3),

@@ -40,7 +40,7 @@ fn controller_role() {
         verbose: true,
     };
     let stats = run_controller::<ROWS>(
-        s.robot(),
+        s.robot().expect("robot"),
         s.inverse_params(),
         &opts,
         &AtomicBool::new(false),
@@ -88,7 +88,7 @@ fn two_processes_equal_one(test: &str, period: Option<Duration>) {
     );
 
     let instance = unique_instance("lockstep");
-    let setup = setup_fingerprint(&scene.robot(), &scene.inverse_params());
+    let setup = setup_fingerprint(&scene.robot().expect("robot"), &scene.inverse_params());
     let mut host = SharedMemoryHost::<ROWS>::connect(&config(&instance), setup).expect("host");
     let mut child = spawn_role(test, "controller", &[(INSTANCE, instance.clone())]);
     let two = run_with(&scene, &RunOptions { period, ..opts }, &mut host, |_| {});

@@ -32,7 +32,7 @@ fn host_role() {
         .and_then(|s| s.parse().ok())
         .unwrap_or(10);
     let s = scene();
-    let setup = setup_fingerprint(&s.robot(), &s.inverse_params());
+    let setup = setup_fingerprint(&s.robot().expect("robot"), &s.inverse_params());
     let mut host = SharedMemoryHost::<ROWS>::connect(&config(&instance), setup).expect("host");
     let opts = RunOptions {
         steps: Some(steps),
@@ -65,7 +65,7 @@ fn controller_holds_when_the_host_dies_and_resumes_with_a_restarted_host() {
     let s = scene();
     let instance = unique_instance("restart");
     let ctl = ControllerThread::start::<ROWS>(
-        s.robot(),
+        s.robot().expect("robot"),
         s.inverse_params(),
         &instance,
         1000.0,

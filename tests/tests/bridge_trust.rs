@@ -141,7 +141,7 @@ fn pause_process(pid: u32, first: Duration) {
 /// The host side of the pause tests: runs `steps` steps of the scene.
 fn host_run(instance: &str, steps: usize) -> needle_host::run::RunSummary {
     let s = scene();
-    let setup = setup_fingerprint(&s.robot(), &s.inverse_params());
+    let setup = setup_fingerprint(&s.robot().expect("robot"), &s.inverse_params());
     let cfg = needle_bridge::BridgeConfig {
         handle_signals: true,
         ..config(instance)
@@ -176,7 +176,7 @@ fn sigstop_of_the_controller_for_2_s_is_survived() {
             ..ControllerOptions::default()
         };
         let st = run_controller::<ROWS>(
-            s.robot(),
+            s.robot().expect("robot"),
             s.inverse_params(),
             &opts,
             &AtomicBool::new(false),
@@ -219,7 +219,7 @@ fn sigstop_of_the_host_for_2_s_is_survived() {
     let instance = unique_instance("stophost");
     let s = scene();
     let ctl = ControllerThread::start::<ROWS>(
-        s.robot(),
+        s.robot().expect("robot"),
         s.inverse_params(),
         &instance,
         1000.0,

@@ -5,7 +5,7 @@
 
 use needle_core::payload::StatusFlags;
 use needle_core::synthetic::{random_frame, rigid_needle_frame};
-use needle_core::{Command, ComplianceFrame, Controller, DhChain, InverseParams};
+use needle_core::{Command, ComplianceFrame, Controller, DhChain, InverseParams, Kinematics};
 
 const M: usize = 24;
 
@@ -82,8 +82,8 @@ fn speed_limit_scales_the_step_and_reports_it() {
     let mut ctrl = Controller::<M>::new(chain, InverseParams::default());
     let rep = ctrl.step(&frame, &mut cmd).expect("valid frame");
     assert!(rep.flags & StatusFlags::SATURATED_SPEED != 0, "{rep:?}");
-    for i in 0..6 {
-        let lim = ctrl.chain.limits[i].max_speed * frame.dt;
+    for (i, l) in ctrl.robot.limits().iter().enumerate() {
+        let lim = l.max_speed * frame.dt;
         assert!(
             (cmd.q[i] - q_free[i]).abs() <= lim * (1.0 + 1e-12),
             "joint {i}"
@@ -102,7 +102,7 @@ fn joint_limits_are_respected_and_reported() {
     rigid_needle_frame(&mut frame, &chain, &q_free, &q_target, 120.0);
     let mut ctrl = Controller::<M>::new(chain, InverseParams::default());
     let rep = ctrl.step(&frame, &mut cmd).expect("valid frame");
-    assert!(ctrl.chain.within_limits(&cmd.q), "{:?}", cmd.q);
+    assert!(ctrl.robot.within_limits(&cmd.q), "{:?}", cmd.q);
     assert!(rep.flags & StatusFlags::SATURATED_LIMIT != 0, "{rep:?}");
 }
 
@@ -131,7 +131,7 @@ fn random_frames_step_to_finite_commands() {
         assert_eq!(rep.solves, 8);
         assert!(cmd.lambda[..frame.m as usize].iter().all(|x| x.is_finite()));
         assert!(cmd.q.iter().all(|x| x.is_finite()));
-        assert!(ctrl.chain.within_limits(&cmd.q));
+        assert!(ctrl.robot.within_limits(&cmd.q));
         assert_eq!(
             rep.flags & StatusFlags::NOT_CONVERGED,
             0,

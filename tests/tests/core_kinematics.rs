@@ -1,7 +1,7 @@
 //! `needle_core::kinematics` against `rv1a_fk.json` (roboticstoolbox / pinocchio) and against
 //! central finite differences of its own forward kinematics.
 
-use needle_core::kinematics::{DhChain, Pose};
+use needle_core::kinematics::{DhChain, Kinematics, Pose};
 use needle_tests::{arr, load_ref, mat};
 use serde_json::Value;
 

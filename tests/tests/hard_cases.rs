@@ -7,6 +7,7 @@
 //! (`-- --nocapture`); docs/hard-cases.md quotes them.
 
 use needle_bridge::InProcess;
+use needle_core::Kinematics;
 use needle_core::payload::StatusFlags;
 use needle_host::run::{RunOptions, RunResult, run};
 use needle_host::scene::Scene;
@@ -291,7 +292,7 @@ fn case3_wrist_singularity_start_steps_stay_within_the_speed_limits() {
     );
     let q0 = start_joints(&scene).expect("start");
     assert_eq!(q0[4], 0.0, "J5 = 0 exactly");
-    let chain = scene.robot();
+    let chain = scene.robot().expect("robot");
     let r = insert(&scene);
     common("wrist singularity J5 = 0", &r);
     within("wrist singularity J5 = 0", &r, COMPLEX_MEAN, COMPLEX_MAX);
@@ -299,7 +300,7 @@ fn case3_wrist_singularity_start_steps_stay_within_the_speed_limits() {
     let mut worst = 0.0f64;
     for x in &r.reports {
         for i in 0..6 {
-            let lim = chain.limits[i].max_speed * scene.robot.dt;
+            let lim = chain.limits()[i].max_speed * scene.robot.dt;
             let ratio = (x.q[i] - prev[i]).abs() / lim;
             worst = worst.max(ratio);
             assert!(
@@ -408,15 +409,15 @@ fn case7_unreachable_target_saturates_reports_and_stays_still() {
             ("robot.joint_max_deg", "[150, 60.4, 122.8, 160, 90, 200]"),
         ],
     );
-    let chain = scene.robot();
+    let chain = scene.robot().expect("robot");
     let r = insert(&scene);
     common("unreachable", &r);
     let s = &r.summary;
     let n = r.reports.len();
     for x in &r.reports {
         assert!(
-            (0..6).all(|i| x.q[i] >= chain.limits[i].lower - 1e-12
-                && x.q[i] <= chain.limits[i].upper + 1e-12),
+            (0..6).all(|i| x.q[i] >= chain.limits()[i].lower - 1e-12
+                && x.q[i] <= chain.limits()[i].upper + 1e-12),
             "step {}: joints outside their limits",
             x.step
         );

@@ -4,7 +4,7 @@
 //! the chain's own forward kinematics, and the loader's errors.
 
 use nalgebra::{Matrix3, SMatrix, Vector3};
-use needle_core::{Pose, SerialChain};
+use needle_core::{Kinematics, Pose, SerialChain};
 use needle_host::robot::urdf::{UrdfReason, load_chain, load_robot, parse_robot};
 use needle_tests::{arr, load_ref, mat, ref_path};
 
@@ -75,7 +75,7 @@ fn check_robot<const N: usize>(name: &str, base_link: &str) -> Worst {
         arr(&rob["velocity_rad_s"]),
     );
     for i in 0..N {
-        let l = robot.limits[i];
+        let l = robot.chain.limits[i];
         assert_eq!(l.lower, lo[i], "{name}: lower {i}");
         assert_eq!(l.upper, hi[i], "{name}: upper {i}");
         assert_eq!(l.max_speed, vel[i], "{name}: velocity {i}");
@@ -277,9 +277,9 @@ fn prismatic_and_zero_axis_are_errors() {
 fn continuous_joint_and_units() {
     let r = parse_robot::<2>(&two_joint("continuous", "0 2 0"), "inline.urdf", "a", "c")
         .expect("continuous is a revolute joint without limits");
-    assert_eq!(r.limits[1].lower, f64::NEG_INFINITY);
-    assert_eq!(r.limits[1].upper, f64::INFINITY);
-    assert_eq!(r.limits[1].max_speed, 2.0);
+    assert_eq!(r.chain.limits[1].lower, f64::NEG_INFINITY);
+    assert_eq!(r.chain.limits[1].upper, f64::INFINITY);
+    assert_eq!(r.chain.limits[1].max_speed, 2.0);
     // Metres to millimetres, axis normalised, rpy = Rz(yaw) Ry(pitch) Rx(roll).
     assert_eq!(
         r.chain.joints[0].origin.translation,

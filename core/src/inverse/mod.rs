@@ -61,7 +61,7 @@ pub use qp_step::QP_MAX_JOINTS;
 pub use solves::base_violation;
 
 use crate::constraint::{ActiveSet, BlockGs};
-use crate::kinematics::DhChain;
+use crate::kinematics::Robot;
 use crate::reduce::BaseElimination;
 use solves::Target;
 
@@ -74,8 +74,8 @@ use solves::Target;
 /// (feature `alloc`) on the heap, not on a small stack.
 #[derive(Clone, Debug)]
 pub struct Controller<const M: usize, const N: usize = 6> {
-    /// The robot (DH chain, limits, base and tool transforms).
-    pub chain: DhChain<N>,
+    /// The robot (kinematics, limits, base and tool transforms).
+    pub robot: Robot<N>,
     /// Tuning.
     pub params: InverseParams,
     /// Block factors of the problem the step iterates on (the reduced one with `eliminate_base`).
@@ -137,7 +137,7 @@ crate::zeroed::impl_zeroable!(Lambdas<const M> {
     prev_rows
 });
 crate::zeroed::impl_zeroable!(Controller<const M, const N> {
-    chain,
+    robot,
     params,
     gs,
     gs_full,
@@ -156,12 +156,12 @@ impl<const M: usize, const N: usize> Controller<M, N> {
         "M must hold the 6 base rows"
     );
 
-    /// A controller for `chain` with tuning `params`, built by value (≈ `16 M²` bytes on the
+    /// A controller for `robot` (a [`crate::DhChain`], a [`crate::SerialChain`]) with tuning `params`, built by value (≈ `16 M²` bytes on the
     /// stack: prefer [`Self::init_in_place`] or `new_boxed` for large `M`).
-    pub fn new(chain: DhChain<N>, params: InverseParams) -> Self {
+    pub fn new(robot: impl Into<Robot<N>>, params: InverseParams) -> Self {
         let () = Self::CAPACITY_OK;
         Self {
-            chain,
+            robot: robot.into(),
             params,
             gs: BlockGs::new(),
             gs_full: BlockGs::new(),
@@ -176,7 +176,7 @@ impl<const M: usize, const N: usize> Controller<M, N> {
     }
 
     /// Initialises a controller in place (no stack temporary) and returns it: all scratch
-    /// zero, no warm start, `chain` and `params` set.
+    /// zero, no warm start, `robot` and `params` set.
     ///
     /// # Example
     /// ```
@@ -192,10 +192,10 @@ impl<const M: usize, const N: usize> Controller<M, N> {
     /// ```
     pub fn init_in_place(
         this: &mut core::mem::MaybeUninit<Self>,
-        chain: DhChain<N>,
+        robot: impl Into<Robot<N>>,
         params: InverseParams,
     ) -> &mut Self {
-        crate::zeroed::zeroed_in_place(this).configure(chain, params)
+        crate::zeroed::zeroed_in_place(this).configure(robot.into(), params)
     }
 
     /// A controller on the heap in the state of [`Self::init_in_place`], built there (never on
@@ -206,19 +206,19 @@ impl<const M: usize, const N: usize> Controller<M, N> {
     /// use needle_core::{Controller, DhChain, InverseParams};
     ///
     /// let ctrl = Controller::<192>::new_boxed(DhChain::rv1a(), InverseParams::default());
-    /// assert_eq!(ctrl.chain, DhChain::rv1a());
+    /// assert_eq!(ctrl.robot, needle_core::Robot::Dh(DhChain::rv1a()));
     /// ```
     #[cfg(feature = "alloc")]
-    pub fn new_boxed(chain: DhChain<N>, params: InverseParams) -> alloc::boxed::Box<Self> {
+    pub fn new_boxed(robot: impl Into<Robot<N>>, params: InverseParams) -> alloc::boxed::Box<Self> {
         let mut b = crate::zeroed::boxed_zeroed::<Self>();
-        b.configure(chain, params);
+        b.configure(robot.into(), params);
         b
     }
 
     /// Sets the robot and the tuning of a zeroed controller.
-    fn configure(&mut self, chain: DhChain<N>, params: InverseParams) -> &mut Self {
+    fn configure(&mut self, robot: Robot<N>, params: InverseParams) -> &mut Self {
         let () = Self::CAPACITY_OK;
-        self.chain = chain;
+        self.robot = robot;
         self.params = params;
         self
     }

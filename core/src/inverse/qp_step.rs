@@ -40,6 +40,7 @@
 
 use super::step::{Clearances, Jacobian};
 use super::{Controller, Objective};
+use crate::kinematics::Kinematics;
 use crate::payload::{ComplianceFrame, NCLEAR, SolverReport, StatusFlags};
 use crate::qp::{Qp, QpError};
 use nalgebra::{Matrix3, SMatrix, SVector, Vector4};
@@ -231,7 +232,7 @@ impl<const M: usize, const N: usize> Controller<M, N> {
         }
         qp.add_diagonal(2.0 * eps2);
         for i in 0..N {
-            let l = &self.chain.limits[i];
+            let l = &self.robot.limits()[i];
             let v = l.max_speed * frame.dt;
             let q = frame.q[i];
             let mut lower = (l.lower - q).max(-v).min(v);
@@ -252,7 +253,7 @@ impl<const M: usize, const N: usize> Controller<M, N> {
         }
         let start = qp.rows();
         if p.max_base_step.is_finite() {
-            let (jt, _) = self.chain.jacobian_tool(&frame.q);
+            let (jt, _) = self.robot.jacobian_tool(&frame.q);
             for j in 0..3 {
                 for (i, x) in row.iter_mut().enumerate() {
                     *x = jt[(j, i)];
@@ -294,7 +295,7 @@ impl<const M: usize, const N: usize> Controller<M, N> {
         report: &mut SolverReport<N>,
     ) {
         for i in 0..N {
-            let l = &self.chain.limits[i];
+            let l = &self.robot.limits()[i];
             let v = l.max_speed * frame.dt;
             let dq = q_new[i] - frame.q[i];
             if libm::fabs(dq) >= v * (1.0 - 1e-9) {

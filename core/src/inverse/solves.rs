@@ -10,7 +10,7 @@
 
 use super::{Controller, StepError};
 use crate::constraint::{ActiveSet, BlockGs, GsParams, SolveReport};
-use crate::kinematics::Pose;
+use crate::kinematics::{Kinematics, Pose};
 use crate::math::rotation_log;
 use crate::payload::{ComplianceFrame, ValidationError};
 use nalgebra::{Matrix3, Vector3};
@@ -71,7 +71,7 @@ impl<const M: usize, const N: usize> Controller<M, N> {
         tolerance: f64,
     ) -> (Pose, SolveReport) {
         debug_assert!(!(target == Target::Base && start == Start::Predicted));
-        let b = self.chain.tool_pose(q);
+        let b = self.robot.tool_pose(q);
         let d = base_violation(&b, &frame.p_free, &frame.r_free);
         if target == Target::Base {
             self.delta_base = d;
@@ -225,7 +225,7 @@ impl<const M: usize, const N: usize> Controller<M, N> {
     /// The prediction at joints `q` into `lambda.work` (a linearised Jacobian column); returns
     /// the tool pose.
     pub(super) fn predict_at(&mut self, frame: &ComplianceFrame<M, N>, q: &[f64; N]) -> Pose {
-        let b = self.chain.tool_pose(q);
+        let b = self.robot.tool_pose(q);
         let d = base_violation(&b, &frame.p_free, &frame.r_free);
         self.predict(frame, &d);
         b

@@ -3,6 +3,7 @@
 use super::solves::{Start, Target};
 use super::{Controller, Objective, StepError, evaluate_objective};
 use crate::constraint::SolveReport;
+use crate::kinematics::Kinematics;
 use crate::payload::{Command, ComplianceFrame, NCLEAR, SolverReport, StatusFlags, VERSION};
 use nalgebra::{Matrix4, SMatrix, SVector, Vector4};
 
@@ -268,7 +269,7 @@ impl<const M: usize, const N: usize> Controller<M, N> {
             };
             let mut locked = false;
             for i in 0..N {
-                let l = &self.chain.limits[i];
+                let l = &self.robot.limits()[i];
                 let out = (q[i] >= l.upper && dq[i] > 0.0) || (q[i] <= l.lower && dq[i] < 0.0);
                 if out {
                     jac_free.set_column(i, &Vector4::zeros());
@@ -300,7 +301,7 @@ impl<const M: usize, const N: usize> Controller<M, N> {
         report: &mut SolverReport<N>,
     ) -> [f64; N] {
         let (p, q) = (&self.params, &frame.q);
-        let (jt, _) = self.chain.jacobian_tool(q);
+        let (jt, _) = self.robot.jacobian_tool(q);
         let base_motion = (jt.fixed_rows::<3>(0) * dq).norm();
         if base_motion > p.max_base_step {
             dq *= p.max_base_step / base_motion;
@@ -308,7 +309,7 @@ impl<const M: usize, const N: usize> Controller<M, N> {
         }
         let mut scale = 1.0f64;
         for i in 0..N {
-            let lim = self.chain.limits[i].max_speed * frame.dt;
+            let lim = self.robot.limits()[i].max_speed * frame.dt;
             let a = libm::fabs(dq[i]);
             if a > lim {
                 scale = scale.min(if lim > 0.0 { lim / a } else { 0.0 });
@@ -322,12 +323,12 @@ impl<const M: usize, const N: usize> Controller<M, N> {
         for i in 0..N {
             q_new[i] = q[i] + dq[i];
         }
-        if self.chain.clamp_to_limits(&mut q_new) {
+        if self.robot.clamp_to_limits(&mut q_new) {
             report.flags |= StatusFlags::SATURATED_LIMIT;
         }
         // A frame outside the limits must still respect the speed limit.
         for i in 0..N {
-            let lim = self.chain.limits[i].max_speed * frame.dt;
+            let lim = self.robot.limits()[i].max_speed * frame.dt;
             q_new[i] = q_new[i].max(q[i] - lim).min(q[i] + lim);
         }
         let mut applied = SVector::<f64, N>::zeros();

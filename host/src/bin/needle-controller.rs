@@ -95,7 +95,13 @@ fn main() -> ExitCode {
         cli.deadline_ms,
         opts.bridge.frame_service_name()
     );
-    let (robot, inverse) = setup::core(&scene);
+    let (robot, inverse) = match setup::core(&scene) {
+        Ok(c) => c,
+        Err(e) => {
+            eprintln!("error: {}", chain(&e));
+            return ExitCode::FAILURE;
+        }
+    };
     match run_controller::<ROWS>(robot, inverse, &opts, &AtomicBool::new(false)) {
         Ok(stats) => {
             println!("needle-controller: {stats}");

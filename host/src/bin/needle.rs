@@ -558,7 +558,13 @@ fn serve_cmd(a: ServeArgs) -> ExitCode {
         handle_signals: true,
         ..BridgeConfig::default()
     };
-    let (robot, inverse) = setup::core(&scene);
+    let (robot, inverse) = match setup::core(&scene) {
+        Ok(c) => c,
+        Err(e) => {
+            eprintln!("error: {}", chain(&e));
+            return ExitCode::FAILURE;
+        }
+    };
     needle_bridge::shm::quiet_logs();
     let mut host =
         match SharedMemoryHost::<ROWS>::connect(&cfg, setup_fingerprint(&robot, &inverse)) {

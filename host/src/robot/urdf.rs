@@ -95,11 +95,10 @@ pub enum UrdfReason {
 /// A chain read from a URDF with its joints' names and limits.
 #[derive(Clone, Debug)]
 pub struct UrdfRobot<const N: usize> {
-    /// The kinematics, base link = world frame, tool = the tip link's frame [mm].
-    pub chain: SerialChain<N>,
-    /// Per movable joint, base first: `lower`, `upper` [rad] and `max_speed` = the URDF
+    /// The kinematics, base link = world frame, tool = the tip link's frame [mm]; its limits
+    /// per movable joint, base first: `lower`, `upper` [rad] and `max_speed` = the URDF
     /// `velocity` [rad/s] (0 where the file gives none). Continuous joints get ±∞ positions.
-    pub limits: [JointLimit; N],
+    pub chain: SerialChain<N>,
     /// The movable joints' names, base first.
     pub joint_names: Vec<String>,
 }
@@ -287,8 +286,8 @@ fn build<const N: usize>(
             joints,
             base: Pose::identity(),
             tool: pending,
+            limits,
         },
-        limits,
         joint_names: names,
     })
 }

@@ -244,7 +244,7 @@ fn outputs(
 fn naive_replay(
     world: &World,
     params: &crate::step::StepParams,
-    robot: needle_core::kinematics::DhChain<JOINTS>,
+    robot: needle_core::kinematics::Robot<JOINTS>,
     inverse: needle_core::inverse::InverseParams,
     steps: usize,
 ) -> (Option<OpenLoop>, Option<(usize, StopReason)>) {

@@ -83,6 +83,23 @@ impl Scene {
         {
             *mesh = dir.join(&*mesh);
         }
+        if let (Some(urdf), Some(dir)) = (scene.robot.urdf.as_mut(), path.parent())
+            && urdf.is_relative()
+        {
+            *urdf = dir.join(&*urdf);
+        }
+        // The URDF is read once its path is resolved: its chain, and the start joints against
+        // its limits.
+        if scene.robot.urdf.is_some() {
+            scene
+                .robot()
+                .and_then(|robot| scene.check_start_joints(&robot))
+                .map_err(|(field, reason)| SceneError {
+                    file: file.clone(),
+                    field,
+                    reason,
+                })?;
+        }
         Ok(scene)
     }
 

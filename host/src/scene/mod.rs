@@ -108,6 +108,17 @@ pub struct RobotSpec {
     /// A DH table of six rows, replacing the preset's.
     #[serde(default)]
     pub dh: Option<Vec<DhRowSpec>>,
+    /// A URDF file (relative to the scene file) whose joints from `base_link` to `tip_link`
+    /// replace the preset: kinematics, joint limits and velocities (lengths converted from
+    /// metres to mm; meshes ignored). `tool` is then given in the tip link's frame.
+    #[serde(default)]
+    pub urdf: Option<std::path::PathBuf>,
+    /// With `urdf`: the link placed at `base` (the robot's base).
+    #[serde(default)]
+    pub base_link: Option<String>,
+    /// With `urdf`: the link that holds the needle (`tool` is given in its frame).
+    #[serde(default)]
+    pub tip_link: Option<String>,
     /// Robot base in the world frame.
     #[serde(default)]
     pub base: PoseSpec,
@@ -137,6 +148,9 @@ impl Default for RobotSpec {
         Self {
             preset: default_preset(),
             dh: None,
+            urdf: None,
+            base_link: None,
+            tip_link: None,
             base: PoseSpec::default(),
             tool: PoseSpec::default(),
             joint_min_deg: None,

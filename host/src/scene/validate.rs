@@ -4,6 +4,7 @@
 //! it can only be a typo or an attack (a needle of 10³⁰⁰ MPa, a time step of 10⁻³⁰⁰ s).
 
 use super::{PoseSpec, SampledPath, Scene};
+use needle_core::kinematics::{Kinematics, Robot};
 
 type Check = Result<(), (String, String)>;
 
@@ -117,6 +118,30 @@ impl Scene {
 
     fn validate_robot(&self) -> Check {
         let r = &self.robot;
+        if r.urdf.is_some() {
+            if r.dh.is_some() {
+                return fail("robot.dh", "give either `urdf` or `dh`, not both");
+            }
+            for (field, v) in [
+                ("robot.base_link", &r.base_link),
+                ("robot.tip_link", &r.tip_link),
+            ] {
+                if v.as_deref().is_none_or(|s| s.trim().is_empty()) {
+                    return fail(
+                        field,
+                        "needed with `robot.urdf`: the name of a link of the file",
+                    );
+                }
+            }
+        } else if let Some(field) = [
+            ("robot.base_link", &r.base_link),
+            ("robot.tip_link", &r.tip_link),
+        ]
+        .iter()
+        .find_map(|(f, v)| v.is_some().then_some(*f))
+        {
+            return fail(field, "only with `robot.urdf`");
+        }
         match &r.dh {
             Some(rows) if rows.len() != 6 => {
                 return fail(
@@ -136,7 +161,7 @@ impl Scene {
                     }
                 }
             }
-            None if r.preset != "rv1a" => {
+            None if r.preset != "rv1a" && r.urdf.is_none() => {
                 return fail(
                     "robot.preset",
                     format!(
@@ -175,9 +200,17 @@ impl Scene {
             );
         }
         six("robot.start_joints_deg", &r.start_joints_deg)?;
-        if let Some(q) = &r.start_joints_deg {
-            let chain = self.robot();
-            for (i, (v, l)) in q.iter().zip(&chain.limits).enumerate() {
+        // A URDF's limits are checked when the file is read (`Scene::load`).
+        if r.urdf.is_none() {
+            self.check_start_joints(&self.robot()?)?;
+        }
+        Ok(())
+    }
+
+    /// The start joints, when given, within the limits of `robot`.
+    pub(crate) fn check_start_joints(&self, robot: &Robot<6>) -> Check {
+        if let Some(q) = &self.robot.start_joints_deg {
+            for (i, (v, l)) in q.iter().zip(robot.limits()).enumerate() {
                 let (lo, hi) = (l.lower.to_degrees(), l.upper.to_degrees());
                 if !(*v >= lo && *v <= hi) {
                     return fail(

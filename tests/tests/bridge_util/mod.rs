@@ -6,7 +6,6 @@
 
 use needle_bridge::{BridgeConfig, ControllerNode, ControllerOptions, ControllerStats, Wait};
 use needle_core::inverse::InverseParams;
-use needle_core::kinematics::DhChain;
 use std::io::Read;
 use std::process::{Child, Command, ExitStatus, Stdio};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -132,7 +131,7 @@ pub struct ControllerThread {
 impl ControllerThread {
     /// Starts a controller of capacity `M` on `instance` at `rate_hz`, for at most `limit`.
     pub fn start<const M: usize>(
-        chain: DhChain<6>,
+        chain: impl Into<needle_core::Robot<6>> + Send + 'static,
         params: InverseParams,
         instance: &str,
         rate_hz: f64,

@@ -1,0 +1,187 @@
+//! Robots read from URDF in a scene (`robot.urdf`, `base_link`, `tip_link`): the loader's errors
+//! name the scene file, the field and the reason; a URDF scene's robot is the file's chain placed
+//! at `robot.base` with the needle at `robot.tool`; the KR 16-2 runs the complex insertion.
+
+use needle_core::{Kinematics, Pose, Robot};
+use needle_host::robot::urdf::load_robot;
+use needle_host::run::{Outcome, RunOptions, run};
+use needle_host::scene::Scene;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+fn repo() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
+}
+
+/// A scene file in a temporary folder beside a copy of the KR 16-2 URDF (as `arm.urdf`), with
+/// `robot` as its `[robot]` table and the rest of the complex scene.
+fn scene_with_robot(dir: &Path, robot: &str) -> PathBuf {
+    std::fs::copy(
+        repo().join("scenes/robots/kr16_2.urdf"),
+        dir.join("arm.urdf"),
+    )
+    .expect("copy");
+    std::fs::copy(
+        repo().join("scenes/robots/lbr_iiwa_14_r820.urdf"),
+        dir.join("iiwa.urdf"),
+    )
+    .expect("copy");
+    let complex = std::fs::read_to_string(repo().join("scenes/complex.toml")).expect("complex");
+    let rest = &complex[complex.find("[gel]").expect("a [gel] table")..];
+    let text = format!("name = \"t\"\n[robot]\n{robot}\n{rest}");
+    let path = dir.join("scene.toml");
+    std::fs::write(&path, text).expect("write");
+    path
+}
+
+fn load_error(robot: &str) -> (String, String, String) {
+    static COUNT: AtomicUsize = AtomicUsize::new(0);
+    let dir = std::env::temp_dir().join(format!(
+        "needle-robots-{}-{}",
+        std::process::id(),
+        COUNT.fetch_add(1, Ordering::Relaxed)
+    ));
+    std::fs::create_dir_all(&dir).expect("temporary folder");
+    let path = scene_with_robot(&dir, robot);
+    let e = Scene::load(&path).expect_err("the scene must be refused");
+    let _ = std::fs::remove_dir_all(&dir);
+    assert_eq!(e.file, path.display().to_string(), "{e}");
+    let text = e.to_string();
+    (e.field, e.reason, text)
+}
+
+#[test]
+fn a_missing_urdf_file_is_refused_naming_it() {
+    let (field, reason, _) =
+        load_error("urdf = \"nowhere.urdf\"\nbase_link = \"base_link\"\ntip_link = \"tool0\"");
+    assert_eq!(field, "robot.urdf");
+    assert!(reason.contains("nowhere.urdf"), "{reason}");
+    assert!(reason.contains("cannot be read"), "{reason}");
+}
+
+#[test]
+fn an_unknown_link_is_refused_naming_the_field_and_the_link() {
+    let (field, reason, _) =
+        load_error("urdf = \"arm.urdf\"\nbase_link = \"base_link\"\ntip_link = \"flange\"");
+    assert_eq!(field, "robot.tip_link");
+    assert!(
+        reason.contains("`flange`") && reason.contains("arm.urdf"),
+        "{reason}"
+    );
+    let (field, reason, _) =
+        load_error("urdf = \"arm.urdf\"\nbase_link = \"pedestal\"\ntip_link = \"tool0\"");
+    assert_eq!(field, "robot.base_link");
+    assert!(reason.contains("`pedestal`"), "{reason}");
+}
+
+#[test]
+fn links_not_on_one_serial_chain_are_refused() {
+    // tool0 lies beyond link_6, not on the way from link_6 back to link_2: no serial chain.
+    let (field, reason, _) =
+        load_error("urdf = \"arm.urdf\"\nbase_link = \"tool0\"\ntip_link = \"link_2\"");
+    assert_eq!(field, "robot.tip_link");
+    assert!(reason.contains("no chain of joints"), "{reason}");
+}
+
+#[test]
+fn a_chain_of_other_than_six_joints_is_refused_with_the_joints_found() {
+    let (field, reason, _) =
+        load_error("urdf = \"arm.urdf\"\nbase_link = \"base_link\"\ntip_link = \"link_5\"");
+    assert_eq!(field, "robot.urdf");
+    assert!(reason.contains("5 movable joints"), "{reason}");
+    assert!(reason.contains("joint_a5"), "{reason}");
+    // 7 joints: the core's controller runs them, this host does not yet: said so.
+    let (field, reason, _) =
+        load_error("urdf = \"iiwa.urdf\"\nbase_link = \"base_link\"\ntip_link = \"tool0\"");
+    assert_eq!(field, "robot.urdf");
+    assert!(reason.contains("7 movable joints"), "{reason}");
+    assert!(reason.contains("not yet in this host"), "{reason}");
+}
+
+#[test]
+fn urdf_needs_both_links_and_excludes_a_dh_table() {
+    let (field, reason, text) = load_error("urdf = \"arm.urdf\"\nbase_link = \"base_link\"");
+    assert_eq!(field, "robot.tip_link");
+    assert!(reason.contains("needed with `robot.urdf`"), "{text}");
+    let (field, _, _) = load_error("tip_link = \"tool0\"");
+    assert_eq!(field, "robot.tip_link");
+}
+
+#[test]
+fn start_joints_outside_the_urdf_limits_are_refused() {
+    // joint_a2 of the KR 16-2: [-155°, 35°].
+    let (field, reason, _) = load_error(
+        "urdf = \"arm.urdf\"\nbase_link = \"base_link\"\ntip_link = \"tool0\"\n\
+         start_joints_deg = [0.0, 40.0, 90.0, 0.0, 0.0, 0.0]",
+    );
+    assert_eq!(field, "robot.start_joints_deg[1]");
+    assert!(reason.contains("outside the joint limits"), "{reason}");
+}
+
+/// The scene's robot is the URDF's chain (mm, limits, velocities) placed at `robot.base`, the
+/// needle base at `robot.tool` in the tip link's frame.
+#[test]
+fn the_kr16_scene_robot_is_the_urdf_chain_placed_by_the_scene() {
+    let path = repo().join("scenes/robots/kr16_complex.toml");
+    let scene = Scene::load(&path).expect("scene");
+    let robot = scene.robot().expect("robot");
+    let Robot::Serial(chain) = robot else {
+        panic!("a URDF robot is a serial chain");
+    };
+    let file = load_robot::<6>(
+        repo().join("scenes/robots/kr16_2.urdf"),
+        "base_link",
+        "tool0",
+    )
+    .expect("urdf");
+    assert_eq!(chain.limits, file.chain.limits);
+    let base = scene.robot.base.to_pose();
+    let tool = scene.robot.tool.to_pose();
+    let q = [0.3, -0.7, 1.9, 0.4, -0.5, 1.1];
+    let want: Pose = base.compose(&file.chain.tool_pose(&q)).compose(&tool);
+    let got = robot.tool_pose(&q);
+    assert!((got.translation - want.translation).amax() < 1e-9);
+    assert!((got.rotation - want.rotation).amax() < 1e-12);
+}
+
+/// The complex insertion held by the KR 16-2: reaches the target within the RV-1A's accuracy on
+/// the same path (`needle run complex`: e_mean 0.913 mm, e_max 4.43 mm), clear of the obstacles,
+/// every commanded joint within the URDF's limits and speeds.
+#[test]
+#[ignore = "full insertion (release, ~20 s): run with --include-ignored"]
+fn kr16_runs_the_complex_insertion_within_its_limits() {
+    let scene = Scene::load(&repo().join("scenes/robots/kr16_complex.toml")).expect("scene");
+    let robot = scene.robot().expect("robot");
+    let limits = *robot.limits();
+    let dt = scene.robot.dt;
+    let mut worst_margin = f64::INFINITY;
+    let mut worst_speed = 0.0f64;
+    let mut prev: Option<[f64; 6]> = None;
+    let result = run(&scene, &RunOptions::default(), |r| {
+        worst_margin = worst_margin.min(robot.limit_margin(&r.q).0);
+        if let Some(p) = prev {
+            for i in 0..6 {
+                worst_speed = worst_speed.max((r.q[i] - p[i]).abs() / (limits[i].max_speed * dt));
+            }
+        }
+        prev = Some(r.q);
+    })
+    .expect("the run starts");
+    let s = result.summary;
+    eprintln!(
+        "kr16: {} · limit margin {worst_margin} rad · speed {worst_speed} of the limit",
+        serde_json::to_string(&s).unwrap_or_default()
+    );
+    assert_eq!(s.outcome, Outcome::Reached);
+    assert!(s.e_mean_mm <= 0.913, "e_mean {}", s.e_mean_mm);
+    assert!(s.e_max_mm <= 4.43, "e_max {}", s.e_max_mm);
+    assert!(!s.obstacle_hit);
+    assert!(
+        worst_margin > 0.1,
+        "a joint came within {worst_margin} rad of a limit"
+    );
+    assert!(
+        worst_speed <= 1.0 + 1e-9,
+        "speed {worst_speed} of the limit"
+    );
+}
