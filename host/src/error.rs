@@ -6,7 +6,7 @@
 #![allow(rustdoc::broken_intra_doc_links)]
 
 use crate::fem::FemError;
-use crate::mesh::{GmshError, MeshError};
+use crate::mesh::{MeshError, MeshFileError};
 use crate::scene::PathError;
 use nalgebra::Vector3;
 use needle_bridge::TransportError;
@@ -50,14 +50,14 @@ pub enum SetupError {
     /// The scene names no gel mesh.
     #[error("the scene has no gel mesh")]
     NoMesh,
-    /// The Gmsh file of the gel could not be read.
+    /// The mesh file of the gel (Gmsh, `.vtu` or `.vtk`) could not be read.
     #[error("gel mesh {}", file.display())]
     MeshFile {
         /// The file.
         file: PathBuf,
         /// Why.
         #[source]
-        source: GmshError,
+        source: MeshFileError,
     },
     /// The gel mesh is invalid.
     #[error("gel mesh")]

@@ -14,7 +14,7 @@ use crate::fem::tetra::Kinematics;
 use crate::free_motion::{
     GelModel, GelParams, NeedleModel, NeedleParams, PcgParams, RegionMaterial,
 };
-use crate::mesh::{TetMesh, box_mesh, read_gmsh};
+use crate::mesh::{TetMesh, box_mesh, read_mesh};
 use crate::scene::{GelSolveSpec, InsertionMode, Scene};
 use crate::step::{Insertion, Interaction, StepParams, TargetMotion};
 use crate::world::{World, WorldParts, node_frame_offset};
@@ -236,13 +236,13 @@ fn plan(scene: &Scene) -> Plan {
     }
 }
 
-/// The gel mesh of a scene (generated box or Gmsh file), validated.
+/// The gel mesh of a scene (generated box, or a Gmsh, `.vtu` or `.vtk` file), validated.
 ///
 /// # Errors
 /// [`SetupError::MeshFile`] naming the file, [`SetupError::Mesh`], [`SetupError::NoMesh`].
 pub fn gel_mesh(scene: &Scene) -> Result<TetMesh, SetupError> {
     let mesh = match (&scene.gel.box_mesh, &scene.gel.mesh) {
-        (_, Some(path)) => read_gmsh(path).map_err(|source| SetupError::MeshFile {
+        (_, Some(path)) => read_mesh(path).map_err(|source| SetupError::MeshFile {
             file: path.clone(),
             source,
         })?,

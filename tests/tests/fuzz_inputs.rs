@@ -226,6 +226,39 @@ proptest! {
     }
 }
 
+proptest! {
+    #![proptest_config(config(400))]
+
+    /// 400 corrupted VTK files as VTK and meshio write them (`.vtu` ASCII, inline binary,
+    /// appended raw and base64, zlib; legacy `.vtk` ASCII and binary): read, or refused with an
+    /// error.
+    #[test]
+    fn corrupted_vtk_files_are_refused_never_a_panic(
+        file in 0usize..8,
+        cuts in proptest::collection::vec((any::<prop::sample::Index>(), any::<u8>(), 0u8..4), 1..5),
+    ) {
+        let name = [
+            "vtk_ascii.vtu",
+            "vtk_binary_zlib.vtu",
+            "vtk_appended_raw_zlib.vtu",
+            "vtk_appended_base64.vtu",
+            "meshio_zlib.vtu",
+            "vtk_legacy_ascii.vtk",
+            "vtk_legacy_binary.vtk",
+            "vtk_legacy42_binary.vtk",
+        ][file];
+        let bytes = corrupt(fixture(name), &cuts);
+        let read = if name.ends_with(".vtu") {
+            needle_host::mesh::read_vtu_bytes(&bytes)
+        } else {
+            needle_host::mesh::read_legacy_vtk_bytes(&bytes)
+        };
+        if let Ok(m) = read {
+            prop_assert!(m.validate().is_ok());
+        }
+    }
+}
+
 /// Regression (found by the fuzz test above with a random seed): a binary file whose
 /// `$MeshFormat` declares a data size of 3 bytes made mshio 0.4.2 panic (`unimplemented!`).
 #[test]

@@ -119,3 +119,89 @@ fn gmsh_22_errors_name_the_element_and_the_reason() {
     let e = read_gmsh_bytes(v22(&["1 2 2 3 1 1 2 3"]).as_bytes()).expect_err("no tets");
     assert!(matches!(e, GmshError::NoTetrahedra), "{e:?}");
 }
+
+/// VTK files of the same mesh, written by VTK 9.7.2 and meshio 5.3.5
+/// (`tools/gen_vtk_fixtures.py`), with the top face's triangles (skipped) and the cell array
+/// `region`.
+const VTK_FILES: [&str; 14] = [
+    "vtk_ascii.vtu",
+    "vtk_binary.vtu",
+    "vtk_binary_zlib.vtu",
+    "vtk_appended_raw_zlib.vtu",
+    "vtk_appended_base64.vtu",
+    "vtk_appended_raw_uint64.vtu",
+    "meshio_ascii.vtu",
+    "meshio_zlib.vtu",
+    "vtk_legacy_ascii.vtk",
+    "vtk_legacy_binary.vtk",
+    "vtk_legacy42_ascii.vtk",
+    "vtk_legacy42_binary.vtk",
+    "meshio_ascii.vtk",
+    "meshio_binary.vtk",
+];
+
+#[test]
+fn vtu_and_legacy_vtk_of_every_layout_read_the_gmsh_mesh_and_its_regions() {
+    let gmsh = read_gmsh(fixture(GMSH_FILES[2])).expect("read");
+    for name in VTK_FILES {
+        let m =
+            needle_host::mesh::read_mesh(fixture(name)).unwrap_or_else(|e| panic!("{name}: {e}"));
+        check_two_regions(name, &m);
+        assert_eq!(m.tets, gmsh.tets, "{name}: same elements");
+        assert_eq!(m.regions, gmsh.regions, "{name}");
+        // VTK's legacy and meshio's XML ASCII writers keep 11 or 12 significant digits.
+        let tol = if name.contains("ascii") { 1e-8 } else { 1e-12 };
+        for (a, b) in m.nodes.iter().zip(&gmsh.nodes) {
+            assert!((a - b).norm() <= tol, "{name}: node {a} against {b}");
+        }
+    }
+}
+
+#[test]
+fn vtk_errors_name_the_cell_and_the_reason() {
+    let e = needle_host::mesh::read_mesh(fixture("vtk_hexahedron.vtu")).expect_err("hexahedron");
+    assert!(e.to_string().contains("vtk cell 0: a hexahedron"), "{e}");
+    let e = needle_host::mesh::read_mesh(fixture("vtk_appended_raw_lz4.vtu")).expect_err("lz4");
+    assert!(e.to_string().contains("vtkLZ4DataCompressor"), "{e}");
+    let legacy = |cells: &str, types: &str| {
+        format!(
+            "# vtk DataFile Version 4.2\nt\nASCII\nDATASET UNSTRUCTURED_GRID\nPOINTS 5 double\n0 0 0 1 0 0 0 1 0 0 0 1 1 1 1\n{cells}\n{types}\n"
+        )
+    };
+    let ok = needle_host::mesh::read_legacy_vtk_bytes(
+        legacy("CELLS 2 10\n4 0 1 2 3\n4 1 2 4 3", "CELL_TYPES 2\n10 10").as_bytes(),
+    )
+    .expect("valid");
+    assert_eq!(ok.tet_count(), 2);
+    for (cells, types, expected) in [
+        (
+            "CELLS 2 10\n4 0 1 2 3\n4 1 2 4 9",
+            "CELL_TYPES 2\n10 10",
+            "vtk cell 1: point index 9 out of range (5 points)",
+        ),
+        (
+            "CELLS 2 10\n4 0 1 2 3\n4 0 1 2 3",
+            "CELL_TYPES 2\n10 10",
+            "vtk cell 1: element 1 duplicates element 0",
+        ),
+        (
+            "CELLS 2 10\n4 0 1 2 3\n4 0 1 2 1",
+            "CELL_TYPES 2\n10 10",
+            "vtk cell 1: element 1 is degenerate",
+        ),
+        (
+            "CELLS 1 9\n8 0 1 2 3 4 0 1 2",
+            "CELL_TYPES 1\n12",
+            "vtk cell 0: a hexahedron",
+        ),
+        (
+            "CELLS 1 5\n4 0 1 2 3",
+            "CELL_TYPES 2\n10 10",
+            "2 CELL_TYPES for 1 CELLS",
+        ),
+    ] {
+        let e = needle_host::mesh::read_legacy_vtk_bytes(legacy(cells, types).as_bytes())
+            .expect_err(expected);
+        assert!(e.to_string().contains(expected), "{cells}: {e}");
+    }
+}

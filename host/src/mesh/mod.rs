@@ -11,10 +11,39 @@ mod generate;
 mod gmsh;
 mod gmsh2;
 mod validate;
+mod vtk;
 
 pub use generate::{BoxDivisions, box_divisions_for_target, box_mesh, box_mesh_with_divisions};
 pub use gmsh::{GmshError, read_gmsh, read_gmsh_bytes, write_gmsh_ascii, write_gmsh_binary};
 pub use validate::{MeshError, degenerate_ratio_threshold};
+pub use vtk::{VtkError, read_legacy_vtk_bytes, read_vtk, read_vtu_bytes};
+
+/// Why a mesh file could not be read (by its format).
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum MeshFileError {
+    /// A Gmsh `.msh` file.
+    #[error(transparent)]
+    Gmsh(#[from] GmshError),
+    /// A VTK `.vtu` or legacy `.vtk` file.
+    #[error(transparent)]
+    Vtk(#[from] VtkError),
+}
+
+/// Reads a tetrahedral mesh by the file's extension: `.vtu` and `.vtk` through [`read_vtk`],
+/// anything else as Gmsh ([`read_gmsh`]).
+///
+/// # Errors
+/// [`MeshFileError`] naming the element or cell at fault and the reason.
+pub fn read_mesh(path: impl AsRef<std::path::Path>) -> Result<TetMesh, MeshFileError> {
+    let path = path.as_ref();
+    match path.extension().and_then(|e| e.to_str()) {
+        Some(e) if e.eq_ignore_ascii_case("vtu") || e.eq_ignore_ascii_case("vtk") => {
+            Ok(read_vtk(path)?)
+        }
+        _ => Ok(read_gmsh(path)?),
+    }
+}
 
 use nalgebra::Vector3;
 

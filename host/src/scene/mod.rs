@@ -194,7 +194,8 @@ pub struct GelSpec {
     /// when neither is given).
     #[serde(default, rename = "box")]
     pub box_mesh: Option<BoxSpec>,
-    /// A Gmsh `.msh` v4 tetrahedral mesh, relative to the scene file (exclusive with `box`).
+    /// A tetrahedral mesh file, relative to the scene file (exclusive with `box`): Gmsh `.msh`
+    /// (2.2 or 4.1), VTK `.vtu` or legacy `.vtk`.
     #[serde(default)]
     pub mesh: Option<PathBuf>,
     /// Young's modulus [MPa].
