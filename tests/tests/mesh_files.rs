@@ -205,3 +205,24 @@ fn vtk_errors_name_the_cell_and_the_reason() {
         assert!(e.to_string().contains(expected), "{cells}: {e}");
     }
 }
+
+/// A gel frame as `needle run --vtk-every` writes it (our zlib-compressed `.vtu` writer, with
+/// the `region` cell array) reads back as the same mesh: a run's output can be a scene's mesh.
+#[test]
+fn a_vtu_written_by_the_frame_writer_reads_back_with_its_regions() {
+    use needle_host::output::vtu::{Array, CellKind, Grid, Values};
+    let m = read_gmsh(fixture(GMSH_FILES[2])).expect("read");
+    let grid = Grid {
+        points: m.nodes.clone(),
+        cells: m
+            .tets
+            .iter()
+            .map(|t| (CellKind::Tetra, t.to_vec()))
+            .collect(),
+        cell_data: vec![Array::new("region", Values::I32(m.regions.clone()))],
+        ..Grid::default()
+    };
+    let text = grid.to_vtu().expect("a valid grid");
+    let back = needle_host::mesh::read_vtu_bytes(text.as_bytes()).expect("reads back");
+    assert_eq!(back, m);
+}
