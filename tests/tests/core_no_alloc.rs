@@ -2,7 +2,9 @@
 //! so other test threads do not interfere) around `Controller::step`, after a warm-up.
 
 use needle_core::synthetic::{random_frame, rv1a_on_turntable};
-use needle_core::{Command, ComplianceFrame, Controller, DhChain, InverseParams};
+use needle_core::{
+    Command, ComplianceFrame, Controller, DhChain, InverseParams, Kinematics, Robot, SerialChain,
+};
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
 
@@ -40,7 +42,10 @@ fn allocations() -> u64 {
 const M: usize = 120;
 
 /// Allocations counted over five `Controller::step`s on seeded random frames, after a warm-up.
-fn step_allocations<const N: usize>(chain: DhChain<N>, q: [f64; N]) -> u64 {
+fn step_allocations<const N: usize, K>(chain: K, q: [f64; N]) -> u64
+where
+    K: Kinematics<N> + Into<Robot<N>> + Copy,
+{
     let mut frame = ComplianceFrame::<M, N>::new_boxed();
     let mut cmd = Command::<M, N>::new_boxed();
     let mut ctrl = Controller::<M, N>::new_boxed(chain, InverseParams::default());
@@ -78,4 +83,16 @@ fn inverse_step_allocates_nothing() {
 fn seven_joint_step_allocates_nothing() {
     let total = step_allocations(rv1a_on_turntable(), [0.1, 0.1, 0.3, 2.0, 0.0, 0.5, 0.0]);
     assert_eq!(total, 0, "Controller<M, 7>::step allocated");
+}
+
+/// A 7-joint general serial chain (origins and axes, as read from a URDF), whose step runs the
+/// third, joint-limit stage of the QP update: nothing allocated either.
+#[test]
+fn seven_joint_serial_chain_step_allocates_nothing() {
+    let chain = SerialChain::from_dh(&rv1a_on_turntable());
+    let total = step_allocations(chain, [2.8, 0.1, 0.3, 2.0, 0.0, 0.5, 0.0]);
+    assert_eq!(
+        total, 0,
+        "Controller<M, 7>::step over a SerialChain allocated"
+    );
 }

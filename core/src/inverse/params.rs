@@ -104,6 +104,13 @@ pub struct InverseParams {
     /// weighed against the damping ε (not against the tip error, as `angle_weight` is in the
     /// paper's update).
     pub qp_angle_weight: f64,
+    /// Gain of the [`StepMethod::Qp`] update's third stage, for arms of more than 6 joints
+    /// (default 0.5; 0: off): each joint is asked to move towards the middle of its range by
+    /// this gain times its distance from the middle (as a fraction of the half range) times its
+    /// speed budget `v_i dt`, within the joint motion that leaves the tip and the angles where the
+    /// first two stages put them (the damped null space of the task). 6-joint arms have no such
+    /// motion to spare, and the stage is skipped.
+    pub limit_avoidance: f64,
 }
 
 // SAFETY: `#[repr(u8)]` and the variant `Solve` has the discriminant 0.
@@ -130,6 +137,7 @@ crate::zeroed::impl_zeroable!(InverseParams {
     method,
     clearance_margin,
     qp_angle_weight,
+    limit_avoidance,
 });
 
 impl Default for InverseParams {
@@ -160,6 +168,7 @@ impl Default for InverseParams {
             method: StepMethod::Qp,
             clearance_margin: 0.2,
             qp_angle_weight: 10.0,
+            limit_avoidance: 0.5,
         }
     }
 }
@@ -195,6 +204,7 @@ impl InverseParams {
             (self.max_base_step > 0.0, "max_base_step"),
             (nonneg(self.clearance_margin), "clearance_margin"),
             (nonneg(self.qp_angle_weight), "qp_angle_weight"),
+            (nonneg(self.limit_avoidance), "limit_avoidance"),
         ];
         for (ok, name) in checks {
             if !ok {

@@ -6,6 +6,9 @@
 //! stage 1   minimise |e + J_e Δq|² + ε² |Δq|²                                   → Δq₁
 //! stage 2   Δq = Δq₁ + P y,  P = I − J_eᵀ (J_e J_eᵀ + ε² I)⁻¹ J_e,
 //!           minimise w² (k |φ1 + Φ1 Δq|² + (1 − k) |φ2 + Φ2 Δq|²) + ε² |y|²
+//! stage 3   (N > 6 only) Δq = Δq₂ + P₃ y, P₃ the projector on the null space of [J_e; w √k Φ1;
+//!           w √(1 − k) Φ2], minimise w² |P₃ y − g|² + ε² |y|², g_i = −κ x_i v_i dt with
+//!           x_i = (q_i − mid_i) / half range_i, κ = InverseParams::limit_avoidance
 //! rows      max(lower_i − q_i, −v_i dt) ≤ Δq_i ≤ min(upper_i − q_i, v_i dt)   joint limits and speeds
 //!           |(J_tool,v Δq)_j| ≤ max_base_step,  j = x, y, z                     trust region (each axis)
 //!           d_k + G_k Δq ≥ clearance_margin                                    obstacle k
@@ -43,7 +46,7 @@ use super::{Controller, Objective};
 use crate::kinematics::Kinematics;
 use crate::payload::{ComplianceFrame, NCLEAR, SolverReport, StatusFlags};
 use crate::qp::{Qp, QpError};
-use nalgebra::{Matrix3, SMatrix, SVector, Vector4};
+use nalgebra::{SMatrix, SVector, Vector4};
 
 /// Largest joint count of the QP update (2 bound rows per joint).
 pub const QP_MAX_JOINTS: usize = 9;
@@ -60,19 +63,42 @@ struct RowRanges {
     clearance: (usize, usize),
 }
 
+/// What a stage minimises.
+#[derive(Clone, Copy, PartialEq)]
+enum Goal<const N: usize> {
+    /// Stage 1: the tip's position.
+    Position,
+    /// Stage 2: the two angles.
+    Angles,
+    /// Stage 3 (more than 6 joints): `|P y − g|²`, `g` the step away from the joint limits.
+    Limits([f64; N]),
+}
+
 /// The change of variables of a stage: `Δq = Δq₀ + P y`.
 struct Stage<const N: usize> {
-    /// Stage 1 (the tip's position is the objective) or 2 (the angles).
-    position: bool,
+    goal: Goal<N>,
     dq0: SVector<f64, N>,
     p: SMatrix<f64, N, N>,
+}
+
+/// `I − Aᵀ (A Aᵀ + ε² I)⁻¹ A`, the (damped) projector on the null space of `A`; `None` when it
+/// is not finite.
+fn null_projector<const R: usize, const N: usize>(
+    a: &SMatrix<f64, R, N>,
+    eps2: f64,
+) -> Option<SMatrix<f64, N, N>> {
+    let aat: SMatrix<f64, R, R> =
+        a * a.transpose() + SMatrix::<f64, R, R>::identity() * eps2.max(1e-12);
+    let x: SMatrix<f64, R, N> = aat.cholesky()?.solve(a);
+    let p = SMatrix::<f64, N, N>::identity() - a.transpose() * x;
+    p.iter().all(|v| v.is_finite()).then_some(p)
 }
 
 impl<const N: usize> Stage<N> {
     /// Stage 1: `Δq = y`.
     fn identity() -> Self {
         Self {
-            position: true,
+            goal: Goal::Position,
             dq0: SVector::zeros(),
             p: SMatrix::identity(),
         }
@@ -83,14 +109,37 @@ impl<const N: usize> Stage<N> {
     /// positive definite (non-finite `J`).
     fn null_space(jac: &Jacobian<N>, dq1: SVector<f64, N>, eps2: f64) -> Option<Self> {
         let je: SMatrix<f64, 3, N> = jac.fixed_rows::<3>(0).into_owned();
-        let a: Matrix3<f64> = je * je.transpose() + Matrix3::identity() * eps2.max(1e-12);
-        let chol = a.cholesky()?;
-        let x: SMatrix<f64, 3, N> = chol.solve(&je);
-        let p = SMatrix::<f64, N, N>::identity() - je.transpose() * x;
-        p.iter().all(|v| v.is_finite()).then_some(Self {
-            position: false,
+        Some(Self {
+            goal: Goal::Angles,
             dq0: dq1,
-            p,
+            p: null_projector(&je, eps2)?,
+        })
+    }
+
+    /// Stage 3: `Δq = Δq₂ + P y`, `P` the projector on the null space of the whole task (the tip's position and the angles that count, each weighed as in its stage), the
+    /// goal `g` a step away from the joint limits (regularised by 1e-9 of the largest row
+    /// norm², not by the step's damping). `None` when `P` is not finite.
+    fn limits(
+        jac: &Jacobian<N>,
+        clear: &Clearances<N>,
+        obj0: &Objective,
+        w: f64,
+        dq2: SVector<f64, N>,
+        g: [f64; N],
+    ) -> Option<Self> {
+        let mut a = SMatrix::<f64, 9, N>::zeros();
+        a.fixed_rows_mut::<3>(0).copy_from(&jac.fixed_rows::<3>(0));
+        a.fixed_rows_mut::<3>(3)
+            .copy_from(&(clear.phi1 * (w * libm::sqrt(obj0.k.max(0.0)))));
+        a.fixed_rows_mut::<3>(6)
+            .copy_from(&(clear.phi2 * (w * libm::sqrt((1.0 - obj0.k).max(0.0)))));
+        // Nearly exact: the step's damping (raised near a singularity) would let the stage
+        // move the task's weakest directions.
+        let scale = (a * a.transpose()).diagonal().max();
+        Some(Self {
+            goal: Goal::Limits(g),
+            dq0: dq2,
+            p: null_projector(&a, 1e-9 * scale)?,
         })
     }
 
@@ -172,6 +221,21 @@ impl<const M: usize, const N: usize> Controller<M, N> {
                 }
             }
         }
+        // Stage 3, a redundant arm only: away from the joint limits in the motion that leaves
+        // the tip and the angles where the first two stages put them (to first order).
+        let gain = self.params.limit_avoidance;
+        if N > 6 && gain > 0.0 {
+            let g = self.away_from_limits(frame, gain);
+            let w = self.params.qp_angle_weight;
+            if let Some(third) = Stage::limits(jac, clear, obj0, w, dq, g)
+                && solve(&mut qp, relaxed, &third, &mut ranges).is_ok()
+            {
+                let dq3 = third.dq(&qp);
+                if dq3.iter().all(|x| x.is_finite()) {
+                    dq = dq3;
+                }
+            }
+        }
         let mut q_new = frame.q;
         for (i, x) in dq.iter().enumerate() {
             q_new[i] += *x;
@@ -206,7 +270,15 @@ impl<const M: usize, const N: usize> Controller<M, N> {
         let p = &self.params;
         qp.reset(N)?;
         let mut row = [0.0; N];
-        if stage.position {
+        if let Goal::Limits(g) = stage.goal {
+            // |P y − g|²: `square` adds Δq₂ to the constant, so it is taken off here.
+            let w2 = p.qp_angle_weight * p.qp_angle_weight;
+            for i in 0..N {
+                row.fill(0.0);
+                row[i] = 1.0;
+                stage.square(qp, &row, -g[i] - stage.dq0[i], w2);
+            }
+        } else if stage.goal == Goal::Position {
             for r in 0..3 {
                 for (i, x) in row.iter_mut().enumerate() {
                     *x = jac[(r, i)];
@@ -274,6 +346,21 @@ impl<const M: usize, const N: usize> Controller<M, N> {
         }
         ranges.clearance = (start, qp.rows());
         qp.solve().map(|_| ())
+    }
+
+    /// The step of stage 3: each joint towards the middle of its range, `gain` times its
+    /// normalised distance from the middle times its speed budget `v_i dt` [rad] (0 for a joint
+    /// without finite limits).
+    fn away_from_limits(&self, frame: &ComplianceFrame<M, N>, gain: f64) -> [f64; N] {
+        let mut g = [0.0; N];
+        for (i, l) in self.robot.limits().iter().enumerate() {
+            let half = 0.5 * (l.upper - l.lower);
+            if half.is_finite() && half > 0.0 {
+                let x = (frame.q[i] - l.mid()) / half;
+                g[i] = -gain * x * l.max_speed * frame.dt;
+            }
+        }
+        g
     }
 
     /// Sets the report's flags from the rows active at the solution.

@@ -233,3 +233,56 @@ fn qp_step_ranks_the_tip_before_the_angles() {
         "the angles were not corrected"
     );
 }
+
+/// A 7-joint arm near a joint limit (the turntable at 160° of ±170°): the third stage moves the
+/// joints away from it in the motion the task leaves free. The difference it makes to the step,
+/// `d`, does not move the needle tip to first order: by finite differences of the forward
+/// kinematics, `|tip(q + s d) − tip(q)| / (s |d|)` is below 1 % of the same rate along the task's
+/// step, at two step sizes (the remainder, ≈ 0.1 % here, is the forward-difference Jacobian's own
+/// error at δq = 0.01 rad, which the projector is built from).
+#[test]
+fn seven_joint_limit_stage_moves_in_the_null_space_of_the_tip() {
+    use crate::kinematics::Kinematics;
+    let chain = rv1a_on_turntable();
+    let mut frame = ComplianceFrame::<12, 7>::new_boxed();
+    let mut cmd = Command::<12, 7>::new_boxed();
+    let lim = 160f64.to_radians();
+    let q_target = [lim - 0.02, 0.2, 0.35, 2.0, 0.1, 0.6, -0.2];
+    let q_free = [lim, 0.25, 0.3, 2.05, 0.05, 0.55, -0.25];
+    rigid_needle_frame(&mut frame, &chain, &q_free, &q_target, 120.0);
+    frame.q = q_free;
+    let off = InverseParams {
+        limit_avoidance: 0.0,
+        ..InverseParams::default()
+    };
+    let with = Controller::<12, 7>::new_boxed(chain, InverseParams::default())
+        .step(&frame, &mut cmd)
+        .expect("valid");
+    let without = Controller::<12, 7>::new_boxed(chain, off)
+        .step(&frame, &mut cmd)
+        .expect("valid");
+    let d: nalgebra::SVector<f64, 7> =
+        nalgebra::SVector::from(with.delta_q) - nalgebra::SVector::from(without.delta_q);
+    std::println!("d = {d:?}");
+    assert!(
+        d[0] < -1e-4,
+        "the turntable moves away from its limit: {d:?}"
+    );
+    let tip = |q: &[f64; 7]| {
+        let b = chain.tool_pose(q);
+        b.translation + 120.0 * b.z_axis()
+    };
+    let rate = |dir: &nalgebra::SVector<f64, 7>, s: f64| {
+        let mut q = q_free;
+        for i in 0..7 {
+            q[i] += s * dir[i];
+        }
+        (tip(&q) - tip(&q_free)).norm() / (s * dir.norm())
+    };
+    let task = nalgebra::SVector::from(without.delta_q);
+    let (r_task, r1, r2) = (rate(&task, 1e-3), rate(&d, 1e-3), rate(&d, 1e-4));
+    std::println!("tip mm/rad: task step {r_task:e}, limit stage {r1:e} (s 1e-3), {r2:e} (s 1e-4)");
+    assert!(r_task > 10.0, "{r_task}");
+    assert!(r1 < 1e-2 * r_task, "{r1} vs {r_task}");
+    assert!(r2 < 1e-2 * r_task, "{r2} vs {r_task}");
+}
