@@ -185,3 +185,47 @@ fn kr16_runs_the_complex_insertion_within_its_limits() {
         "speed {worst_speed} of the limit"
     );
 }
+
+/// The 7-joint LBR iiwa 14 from its URDF through the controller's own path: the objective a
+/// `Controller<M, 7>` evaluates by a constraint solve on a rigid-needle frame
+/// (`objective_at`, `T = target − tip`) has, by central differences, the derivative
+/// `−(J_v − [tip − B]× J_ω)` of the chain's analytic Jacobian.
+#[test]
+fn seven_joint_urdf_jacobian_through_the_controller_by_finite_differences() {
+    use nalgebra::{Matrix3, Vector3};
+    use needle_core::synthetic::rigid_needle_frame;
+    use needle_core::{ComplianceFrame, Controller, InverseParams};
+    let robot = load_robot::<7>(
+        repo().join("scenes/robots/lbr_iiwa_14_r820.urdf"),
+        "base_link",
+        "tool0",
+    )
+    .expect("urdf");
+    let chain = robot.chain;
+    let length = 120.0;
+    let q = [0.3, 0.6, -0.2, -1.2, 0.4, 0.9, -0.5];
+    let q_target = [0.32, 0.58, -0.18, -1.22, 0.41, 0.88, -0.52];
+    let mut frame = ComplianceFrame::<12, 7>::new_boxed();
+    rigid_needle_frame(&mut frame, &chain, &q, &q_target, length);
+    let mut ctrl = Controller::<12, 7>::new_boxed(chain, InverseParams::default());
+    let (jac, b) = chain.jacobian_tool(&q);
+    let tip = b.translation + length * b.z_axis();
+    let r = tip - b.translation;
+    let cross = Matrix3::new(0.0, -r.z, r.y, r.z, 0.0, -r.x, -r.y, r.x, 0.0);
+    let h = 1e-5;
+    let mut worst = 0.0f64;
+    for i in 0..7 {
+        let (mut qp, mut qm) = (q, q);
+        qp[i] += h;
+        qm[i] -= h;
+        let tp = ctrl.objective_at(&frame, &qp).expect("objective").t;
+        let tm = ctrl.objective_at(&frame, &qm).expect("objective").t;
+        let fd = Vector3::new(tp[0] - tm[0], tp[1] - tm[1], tp[2] - tm[2]) / (2.0 * h);
+        let jv = jac.fixed_view::<3, 1>(0, i).into_owned();
+        let jw = jac.fixed_view::<3, 1>(3, i).into_owned();
+        let analytic = -(jv - cross * jw);
+        worst = worst.max((fd - analytic).amax() / analytic.amax().max(1.0));
+    }
+    eprintln!("iiwa 14: controller objective vs analytic tip Jacobian, worst relative {worst:e}");
+    assert!(worst < 1e-4, "{worst}");
+}
