@@ -111,6 +111,13 @@ pub struct InverseParams {
     /// first two stages put them (the damped null space of the task). 6-joint arms have no such
     /// motion to spare, and the stage is skipped.
     pub limit_avoidance: f64,
+    /// Keep the tip's heading θ1 in the second stage of the [`StepMethod::Qp`] update at every
+    /// depth (θ1 weighted 1, θ2 `1 − k`) instead of the paper's blend (θ1 weighted `k`, gone
+    /// beyond the blend depth) (default true). Deep in the gel the sliding points hold the
+    /// shaft, and the direction in which the tip cuts is what steers it: without θ1 the tip
+    /// drifts off a curving path and cannot be brought back (the complex scene ended 4.3 mm
+    /// from its target with the blend, 0.001 mm with θ1 kept; `docs/benchmark.md`).
+    pub qp_heading: bool,
 }
 
 // SAFETY: `#[repr(u8)]` and the variant `Solve` has the discriminant 0.
@@ -138,6 +145,7 @@ crate::zeroed::impl_zeroable!(InverseParams {
     clearance_margin,
     qp_angle_weight,
     limit_avoidance,
+    qp_heading,
 });
 
 impl Default for InverseParams {
@@ -169,6 +177,7 @@ impl Default for InverseParams {
             clearance_margin: 0.2,
             qp_angle_weight: 10.0,
             limit_avoidance: 0.5,
+            qp_heading: true,
         }
     }
 }

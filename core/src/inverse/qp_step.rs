@@ -5,8 +5,8 @@
 //! ```text
 //! stage 1   minimise |e + J_e Δq|² + ε² |Δq|²                                   → Δq₁
 //! stage 2   Δq = Δq₁ + P y,  P = I − J_eᵀ (J_e J_eᵀ + ε² I)⁻¹ J_e,
-//!           minimise w² (k |φ1 + Φ1 Δq|² + (1 − k) |φ2 + Φ2 Δq|²) + ε² |y|²
-//! stage 3   (N > 6 only) Δq = Δq₂ + P₃ y, P₃ the projector on the null space of [J_e; w √k Φ1;
+//!           minimise w² (h |φ1 + Φ1 Δq|² + (1 − k) |φ2 + Φ2 Δq|²) + ε² |y|²
+//! stage 3   (N > 6 only) Δq = Δq₂ + P₃ y, P₃ the projector on the null space of [J_e; w √h Φ1;
 //!           w √(1 − k) Φ2], minimise w² |P₃ y − g|² + ε² |y|², g_i = −κ x_i v_i dt with
 //!           x_i = (q_i − mid_i) / half range_i, κ = InverseParams::limit_avoidance
 //! rows      max(lower_i − q_i, −v_i dt) ≤ Δq_i ≤ min(upper_i − q_i, v_i dt)   joint limits and speeds
@@ -16,7 +16,8 @@
 //!
 //! `e` the tip's error to the target, `φ1`, `φ2` the rotation vectors whose norms are the paper's
 //! angles θ1 (tip direction to the path's tangent) and θ2 (needle base to the entry point), `k`
-//! the paper's blend, `w` [`super::InverseParams::qp_angle_weight`]; `J_e`, `Φ1`, `Φ2` and
+//! the paper's blend, `h` = 1 ([`super::InverseParams::qp_heading`], the default) or `k` (the
+//! paper's blend), `w` [`super::InverseParams::qp_angle_weight`]; `J_e`, `Φ1`, `Φ2` and
 //! `G_k = ∂d_k/∂q` from the same finite-difference columns as the paper's `J`; `ε` as in the
 //! paper's update (raised near a singularity). `P` projects on the (damped) null space of `J_e`,
 //! so stage 2 leaves the tip's predicted position where stage 1 put it; `y = 0` is stage 1's
@@ -33,7 +34,14 @@
 //!   norms cannot reach zero and is not smooth where an angle vanishes, so a Gauss-Newton step on
 //!   it overshoots the kink and the angle alternates from step to step (period-2 chatter);
 //! - **limits are rows of the program**: the answer is the best step the linear model allows,
-//!   not a scaled or clamped copy of the unconstrained one.
+//!   not a scaled or clamped copy of the unconstrained one;
+//! - **the heading θ1 counts at every depth** (`h` = 1), where the paper's blend drops it beyond
+//!   `blend_depth`: deep in the gel the sliding points hold the shaft and the direction in which
+//!   the tip cuts is what steers it;
+//! - **the constrained model confirms the step** before it is sent ([`super::Controller::step`]'s stage 5):
+//!   a step whose constraint solve leaves the tip's error short of a tenth of the promised
+//!   decrease, or an obstacle closer than the margin, is replaced by the first stage's step,
+//!   then halved, then the joints are held.
 //!
 //! When the rows have no common point (a clearance already below the margin that the speed
 //! limits cannot restore in one step), the clearance rows are relaxed to "no closer than now"
@@ -47,6 +55,12 @@ use crate::kinematics::Kinematics;
 use crate::payload::{ComplianceFrame, NCLEAR, SolverReport, StatusFlags};
 use crate::qp::{Qp, QpError};
 use nalgebra::{SMatrix, SVector, Vector4};
+
+/// Weight `h` of the heading θ1 in the second stage: 1 with
+/// [`super::InverseParams::qp_heading`], else the paper's blend `k`.
+fn heading_weight(obj0: &Objective, p: &super::InverseParams) -> f64 {
+    if p.qp_heading { 1.0 } else { obj0.k }
+}
 
 /// Largest joint count of the QP update (2 bound rows per joint).
 pub const QP_MAX_JOINTS: usize = 9;
@@ -123,14 +137,14 @@ impl<const N: usize> Stage<N> {
         jac: &Jacobian<N>,
         clear: &Clearances<N>,
         obj0: &Objective,
-        w: f64,
+        (w, h): (f64, f64),
         dq2: SVector<f64, N>,
         g: [f64; N],
     ) -> Option<Self> {
         let mut a = SMatrix::<f64, 9, N>::zeros();
         a.fixed_rows_mut::<3>(0).copy_from(&jac.fixed_rows::<3>(0));
         a.fixed_rows_mut::<3>(3)
-            .copy_from(&(clear.phi1 * (w * libm::sqrt(obj0.k.max(0.0)))));
+            .copy_from(&(clear.phi1 * (w * libm::sqrt(h.max(0.0)))));
         a.fixed_rows_mut::<3>(6)
             .copy_from(&(clear.phi2 * (w * libm::sqrt((1.0 - obj0.k).max(0.0)))));
         // Nearly exact: the step's damping (raised near a singularity) would let the stage
@@ -173,7 +187,9 @@ impl<const N: usize> Stage<N> {
 }
 
 impl<const M: usize, const N: usize> Controller<M, N> {
-    /// Stage 4 with [`super::StepMethod::Qp`] (module docs). Returns the commanded joints.
+    /// Stage 4 with [`super::StepMethod::Qp`] (module docs). Returns the commanded joints and
+    /// the first stage's step `Δq₁` (the tip alone), the fallback of [`Self::step`]'s
+    /// confirmation.
     pub(super) fn qp_step(
         &self,
         frame: &ComplianceFrame<M, N>,
@@ -181,7 +197,7 @@ impl<const M: usize, const N: usize> Controller<M, N> {
         clear: &Clearances<N>,
         obj0: &Objective,
         report: &mut SolverReport<N>,
-    ) -> [f64; N] {
+    ) -> ([f64; N], SVector<f64, N>) {
         let t0 = &Vector4::from(obj0.t);
         const {
             assert!(
@@ -206,7 +222,7 @@ impl<const M: usize, const N: usize> Controller<M, N> {
         let dq1 = first.dq(&qp);
         if solved.is_err() || !dq1.iter().all(|x| x.is_finite()) {
             report.flags |= StatusFlags::QP_FAILED | StatusFlags::TARGET_UNREACHABLE;
-            return frame.q;
+            return (frame.q, SVector::zeros());
         }
         self.flag_active(&qp, &ranges, report);
         // Stage 2: the angles, in what the position leaves free. Should it fail (round-off), the
@@ -227,8 +243,14 @@ impl<const M: usize, const N: usize> Controller<M, N> {
         if N > 6 && gain > 0.0 {
             let g = self.away_from_limits(frame, gain);
             let w = self.params.qp_angle_weight;
-            if let Some(third) = Stage::limits(jac, clear, obj0, w, dq, g)
-                && solve(&mut qp, relaxed, &third, &mut ranges).is_ok()
+            if let Some(third) = Stage::limits(
+                jac,
+                clear,
+                obj0,
+                (w, heading_weight(obj0, &self.params)),
+                dq,
+                g,
+            ) && solve(&mut qp, relaxed, &third, &mut ranges).is_ok()
             {
                 let dq3 = third.dq(&qp);
                 if dq3.iter().all(|x| x.is_finite()) {
@@ -248,7 +270,7 @@ impl<const M: usize, const N: usize> Controller<M, N> {
         if e * e > self.params.tolerance && predicted > 0.99 * e {
             report.flags |= StatusFlags::TARGET_UNREACHABLE;
         }
-        q_new
+        (q_new, dq1)
     }
 
     /// Fills and solves the program of a stage: its objective (stage 1 the tip's position,
@@ -288,7 +310,7 @@ impl<const M: usize, const N: usize> Controller<M, N> {
         } else {
             let w2 = p.qp_angle_weight * p.qp_angle_weight;
             let angles = [
-                (&clear.phi1, &obj0.phi1, obj0.k),
+                (&clear.phi1, &obj0.phi1, heading_weight(obj0, p)),
                 (&clear.phi2, &obj0.phi2, 1.0 - obj0.k),
             ];
             for (dphi, phi, weight) in angles {

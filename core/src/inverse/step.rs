@@ -12,6 +12,16 @@ use nalgebra::{Matrix4, SMatrix, SVector, Vector4};
 /// less; a frame a million times off is abnormal, and so is the answer it produced).
 pub const WARM_START_SCALE: f64 = 1e6;
 
+/// Fraction of the tip error decrease the linear model promised that the constraint solve at
+/// the planned joints must confirm for the [`super::StepMethod::Qp`] step to be kept (the
+/// Armijo constant of a line search; small, so that only a step that does clearly worse than
+/// its model is shortened).
+pub const SUFFICIENT_DECREASE: f64 = 0.1;
+
+/// Most halvings of the first stage's step `Δq₁` of a [`super::StepMethod::Qp`] step whose
+/// final solve did not confirm it, before the joints are held.
+pub const MAX_BACKTRACKS: usize = 3;
+
 /// The Jacobian `∂T/∂q`, 4 × N [mm/rad].
 pub(super) type Jacobian<const N: usize> = SMatrix<f64, 4, N>;
 
@@ -43,7 +53,9 @@ impl<const M: usize, const N: usize> Controller<M, N> {
     /// 3. Jacobian by forward differences (`jacobian`);
     /// 4. damped Newton step within the trust region, speed and joint limits
     ///    (`newton_step`);
-    /// 5. final solve at the commanded joints (`final_solve`);
+    /// 5. final solve at the commanded joints (`final_solve`); with the QP update, once
+    ///    inserted, the step is kept only when that solve confirms it, else shortened or the
+    ///    joints held (`accept_step`), 1–5 more solves;
     /// 6. answer: check and write the command (`answer`).
     ///
     /// # Errors
@@ -86,9 +98,16 @@ impl<const M: usize, const N: usize> Controller<M, N> {
             (frame.q, base_rep)
         } else {
             let (jac, clear) = self.jacobian(frame, &obj0, &mut report);
-            let q_new = self.newton_step(frame, &jac, &clear, &obj0, &mut report);
-            let final_rep = self.final_solve(frame, &q_new, &mut report);
-            (q_new, final_rep)
+            let (q_new, dq1) = self.newton_step(frame, &jac, &clear, &obj0, &mut report);
+            self.accept_step(
+                frame,
+                &jac,
+                &clear,
+                &obj0,
+                (q_new, dq1),
+                base_rep,
+                &mut report,
+            )
         };
         self.answer(frame, &q_new, &final_rep, report, cmd)
     }
@@ -212,7 +231,7 @@ impl<const M: usize, const N: usize> Controller<M, N> {
     /// ([`Self::damped_step`]) brought within the trust region, the speed and the joint limits
     /// ([`Self::limit_step`]); with [`super::StepMethod::Qp`] (the default), the quadratic
     /// program of `qp_step.rs` with those limits and the obstacle clearances as rows. Returns the
-    /// commanded joints.
+    /// commanded joints, and for the QP its first stage's step (the tip alone).
     fn newton_step(
         &self,
         frame: &ComplianceFrame<M, N>,
@@ -220,12 +239,15 @@ impl<const M: usize, const N: usize> Controller<M, N> {
         clear: &Clearances<N>,
         obj0: &Objective,
         report: &mut SolverReport<N>,
-    ) -> [f64; N] {
+    ) -> ([f64; N], SVector<f64, N>) {
         let t0 = Vector4::from(obj0.t);
         match self.params.method {
             super::StepMethod::Paper => {
                 let dq = self.damped_step(&frame.q, jac, &t0, report);
-                self.limit_step(frame, jac, &t0, dq, report)
+                (
+                    self.limit_step(frame, jac, &t0, dq, report),
+                    SVector::zeros(),
+                )
             }
             super::StepMethod::Qp => self.qp_step(frame, jac, clear, obj0, report),
         }
@@ -353,6 +375,69 @@ impl<const M: usize, const N: usize> Controller<M, N> {
             report.flags |= StatusFlags::TARGET_UNREACHABLE;
         }
         q_new
+    }
+
+    /// Stage 5 with [`super::StepMethod::Qp`]: the final solve at the planned joints, and the
+    /// step is kept only if that solve — the constrained model itself, not its linearisation —
+    /// confirms it (a sufficient-decrease test, as a line-search Newton method makes):
+    /// - the tip's error falls by at least [`SUFFICIENT_DECREASE`] of what the linear model
+    ///   promised (`|e_after|² ≤ |e₀|² − c (|e₀|² − |e_pred|²)`), or is within the objective's
+    ///   tolerance;
+    /// - no obstacle clearance ends below `min(clearance_margin, its value before the step)`.
+    ///
+    /// The candidates, in order: the planned step (tip and angles), the first stage's step `Δq₁`
+    /// (the tip alone), then `Δq₁` halved, up to [`MAX_BACKTRACKS`] times; when none passes, the
+    /// joints are held (the base solve is the answer). Each candidate keeps the joint limits and
+    /// speeds, the trust region and the linearised clearance rows, which hold at the planned
+    /// step, at `Δq₁` and at 0. Before the puncture there is no test: pushing on the surface
+    /// builds the force that punctures it without bringing the tip closer. The paper's method
+    /// keeps its own step (the final solve alone).
+    #[allow(clippy::too_many_arguments)]
+    fn accept_step(
+        &mut self,
+        frame: &ComplianceFrame<M, N>,
+        jac: &Jacobian<N>,
+        clear: &Clearances<N>,
+        obj0: &Objective,
+        (q_new, dq1): ([f64; N], SVector<f64, N>),
+        base_rep: SolveReport,
+        report: &mut SolverReport<N>,
+    ) -> ([f64; N], SolveReport) {
+        if self.params.method != super::StepMethod::Qp || frame.inserted == 0 {
+            let rep = self.final_solve(frame, &q_new, report);
+            return (q_new, rep);
+        }
+        let tip_sq = |t: &[f64; 4]| t[0] * t[0] + t[1] * t[1] + t[2] * t[2];
+        let e0 = tip_sq(&obj0.t);
+        let mut dq = SVector::<f64, N>::zeros();
+        for i in 0..N {
+            dq[i] = q_new[i] - frame.q[i];
+        }
+        for attempt in 0..=MAX_BACKTRACKS + 1 {
+            let mut q_try = frame.q;
+            for i in 0..N {
+                q_try[i] += dq[i];
+            }
+            let rep = self.final_solve(frame, &q_try, report);
+            let predicted = Vector4::from(obj0.t) + jac * dq;
+            let e_pred = tip_sq(&[predicted[0], predicted[1], predicted[2], 0.0]);
+            let e_after = tip_sq(&report.objective_after);
+            let decrease = e_after <= e0 - SUFFICIENT_DECREASE * (e0 - e_pred).max(0.0)
+                || e_after <= self.params.tolerance;
+            let clear_ok = (0..clear.count).all(|k| {
+                let after = frame.clearance(k, &self.lambda.work);
+                after >= self.params.clearance_margin.min(clear.value[k])
+            });
+            if decrease && clear_ok {
+                return (q_try, rep);
+            }
+            report.flags |= StatusFlags::BACKTRACKED;
+            dq = if attempt == 0 { dq1 } else { dq * 0.5 };
+        }
+        let m = frame.rows();
+        self.lambda.work[..m].copy_from_slice(&self.lambda.base[..m]);
+        report.objective_after = obj0.t;
+        (frame.q, base_rep)
     }
 
     /// Stage 5: the solve at the commanded joints (started from the prediction) → the `λ` the

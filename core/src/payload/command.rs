@@ -29,6 +29,10 @@ impl StatusFlags {
     /// The quadratic program of the step had no solution, even with the clearance rows relaxed
     /// to "no closer": the joints were held.
     pub const QP_FAILED: u32 = 1 << 8;
+    /// The constraint solve at the planned joints found the tip farther from the target than the
+    /// linear model promised, or an obstacle closer than the margin: the step was shortened
+    /// (halved, up to [`crate::inverse::MAX_BACKTRACKS`] times) or, failing that, the joints held.
+    pub const BACKTRACKED: u32 = 1 << 9;
 }
 
 /// Report of one inverse step, carried in [`Command::report`].

@@ -384,10 +384,11 @@ fn print_text(s: &RunSummary) {
             s.pcg_iterations_mean, s.pcg_iterations_max, s.pcg_fallbacks
         );
     }
-    if s.unreachable_steps + s.limit_steps > 0 {
+    if s.unreachable_steps + s.limit_steps + s.shortened_steps > 0 {
         println!(
-            "target unreachable in {} steps, a joint at its limit in {} steps",
-            s.unreachable_steps, s.limit_steps
+            "target unreachable in {} steps, a joint at its limit in {} steps, \
+             the planned update shortened in {} steps",
+            s.unreachable_steps, s.limit_steps, s.shortened_steps
         );
     }
 }

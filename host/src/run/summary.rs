@@ -128,6 +128,9 @@ pub struct RunSummary {
     pub unreachable_steps: usize,
     /// Steps in which a joint stopped at its limit.
     pub limit_steps: usize,
+    /// Steps whose planned joint update the constraint solve did not confirm, so that the
+    /// controller shortened it or held the joints (`StatusFlags::BACKTRACKED`).
+    pub shortened_steps: usize,
     /// Gel factorisations finished on the background thread and used one step later (0 without
     /// `solver.background_factorization`).
     pub background_factorizations: u64,
@@ -340,6 +343,7 @@ impl Statistics {
             max_inverted_elements: self.max_inverted,
             unreachable_steps: count_flag(reports, StatusFlags::TARGET_UNREACHABLE),
             limit_steps: count_flag(reports, StatusFlags::SATURATED_LIMIT),
+            shortened_steps: count_flag(reports, StatusFlags::BACKTRACKED),
             background_factorizations: background.0,
             immediate_factorizations: background.1,
             pcg_iterations_mean: pcg.map_or(0.0, |p| {

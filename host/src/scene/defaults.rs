@@ -91,6 +91,9 @@ pub(super) fn default_clearance_margin() -> f64 {
 pub(super) fn default_qp_angle_weight() -> f64 {
     InverseParams::default().qp_angle_weight
 }
+pub(super) fn default_qp_heading() -> bool {
+    InverseParams::default().qp_heading
+}
 pub(super) fn default_jacobian() -> JacobianSpec {
     JacobianSpec::Hybrid
 }

@@ -366,6 +366,10 @@ pub struct InverseSpec {
     /// Weight of the angles in the `"qp"` update's second stage, against the damping [mm/rad].
     #[serde(default = "default_qp_angle_weight")]
     pub qp_angle_weight: f64,
+    /// Keep the tip's heading in the `"qp"` update at every depth (not only within the blend
+    /// distance).
+    #[serde(default = "default_qp_heading")]
+    pub qp_heading: bool,
 }
 
 /// How the inverse controller chooses the joint update.
@@ -403,6 +407,7 @@ impl Default for InverseSpec {
             method: default_method(),
             clearance_margin: default_clearance_margin(),
             qp_angle_weight: default_qp_angle_weight(),
+            qp_heading: default_qp_heading(),
         }
     }
 }

@@ -279,13 +279,16 @@ fn the_update_method_clearance_margin_and_qp_angle_weight_reach_the_core_and_are
     assert_eq!(s.inverse_params().method, StepMethod::Qp, "the default");
     assert_eq!(s.inverse_params().clearance_margin, 0.2);
     assert_eq!(s.inverse_params().qp_angle_weight, 10.0);
+    assert!(s.inverse_params().qp_heading, "the default");
     let o = s
         .with_overrides(&[
             ("inverse.method".into(), "\"paper\"".into()),
             ("inverse.clearance_margin".into(), "0.5".into()),
             ("inverse.qp_angle_weight".into(), "3".into()),
+            ("inverse.qp_heading".into(), "false".into()),
         ])
         .expect("overrides");
+    assert!(!o.inverse_params().qp_heading);
     assert_eq!(o.inverse_params().method, StepMethod::Paper);
     assert_eq!(o.inverse_params().clearance_margin, 0.5);
     assert_eq!(o.inverse_params().qp_angle_weight, 3.0);
