@@ -140,9 +140,11 @@ fn random_frames_step_to_finite_commands() {
     }
 }
 
-/// Deep in the gel (depth ≥ d, k = 0) only θ2 counts: the angle between the needle base axis and
-/// the direction from the base to the entry point. In the rigid-needle frame the entry point is
-/// the target, so reaching the target also zeroes θ2: the step must converge on (e, θ2).
+/// Deep in the gel (depth ≥ d, k = 0) under the paper's blend (`qp_heading = false`) only θ2
+/// counts: the angle between the needle base axis and the direction from the base to the entry
+/// point. In the rigid-needle frame the entry point is the target, so reaching the target also
+/// zeroes θ2: the step must converge on (e, θ2). (With the heading kept, the default, θ1 counts
+/// too, and a rigid needle cannot zero both angles and the error.)
 #[test]
 fn newton_steps_converge_with_base_angle_when_inserted() {
     let chain = DhChain::rv1a();
@@ -152,7 +154,11 @@ fn newton_steps_converge_with_base_angle_when_inserted() {
     rigid_needle_frame(&mut frame, &chain, &q_free, &Q_TARGET, 120.0);
     frame.inserted = 1;
     frame.insertion_depth = 50.0;
-    let mut ctrl = Controller::<M>::new(chain, InverseParams::default());
+    let params = InverseParams {
+        qp_heading: false,
+        ..InverseParams::default()
+    };
+    let mut ctrl = Controller::<M>::new(chain, params);
     let mut q = q_free;
     let mut last = f64::INFINITY;
     for step in 0..10 {
