@@ -228,13 +228,13 @@ impl<const M: usize, const N: usize> Controller<M, N> {
         // Stage 2: the angles, in what the position leaves free. Should it fail (round-off), the
         // first stage's step stands.
         let mut dq = dq1;
-        if let Some(second) = Stage::null_space(jac, dq1, eps2) {
-            if solve(&mut qp, relaxed, &second, &mut ranges).is_ok() {
-                let dq2 = second.dq(&qp);
-                if dq2.iter().all(|x| x.is_finite()) {
-                    dq = dq2;
-                    self.flag_active(&qp, &ranges, report);
-                }
+        if let Some(second) = Stage::null_space(jac, dq1, eps2)
+            && solve(&mut qp, relaxed, &second, &mut ranges).is_ok()
+        {
+            let dq2 = second.dq(&qp);
+            if dq2.iter().all(|x| x.is_finite()) {
+                dq = dq2;
+                self.flag_active(&qp, &ranges, report);
             }
         }
         // Stage 3, a redundant arm only: away from the joint limits in the motion that leaves
