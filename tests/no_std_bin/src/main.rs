@@ -59,7 +59,7 @@ pub extern "C" fn main(_argc: i32, _argv: *const *const u8) -> i32 {
         )
     };
     let q = [0.1, 0.3, 2.0, 0.0, 0.5, 0.0];
-    random_frame(frame, &ctrl.chain, &q, M, 1, true);
+    random_frame(frame, &ctrl.robot, &q, M, 1, true);
     let mut line = Line {
         buf: [0; 256],
         len: 0,
