@@ -96,6 +96,22 @@ class Reject(Exception):
 # Small vector helpers (3-tuples).
 
 
+
+# Gmsh settings of every generated mesh: quiet, one thread, a fixed seed (the same mesh on every
+# machine), MSH 4.1 ASCII with the physical groups only. `tools/gen_tissue.py` uses them too.
+GMSH_OPTIONS = (
+    ("General.Terminal", 0),
+    ("General.Verbosity", 0),
+    ("General.NumThreads", 1),
+    ("Mesh.Algorithm", 6),  # Frontal-Delaunay surfaces
+    ("Mesh.Algorithm3D", 1),  # Delaunay volume
+    ("Mesh.RandomSeed", 1),
+    ("Mesh.Optimize", 1),
+    ("Mesh.MshFileVersion", 4.1),
+    ("Mesh.Binary", 0),
+    ("Mesh.SaveAll", 0),
+)
+
 def add(a, b):
     return (a[0] + b[0], a[1] + b[1], a[2] + b[2])
 
@@ -771,18 +787,7 @@ def gmsh_mesh(sc, path):
 
     gmsh.initialize(["gen_suite"], readConfigFiles=False)
     try:
-        for name, v in (
-            ("General.Terminal", 0),
-            ("General.Verbosity", 0),
-            ("General.NumThreads", 1),
-            ("Mesh.Algorithm", 6),  # Frontal-Delaunay surfaces
-            ("Mesh.Algorithm3D", 1),  # Delaunay volume
-            ("Mesh.RandomSeed", 1),
-            ("Mesh.Optimize", 1),
-            ("Mesh.MshFileVersion", 4.1),
-            ("Mesh.Binary", 0),
-            ("Mesh.SaveAll", 0),
-        ):
+        for name, v in GMSH_OPTIONS:
             gmsh.option.setNumber(name, v)
         # Bisection on the element size for NODES ± 3 %.
         vol = (math.pi / 4 if g.shape == "cylinder" else 1.0) * g.size[0] * g.size[1] * g.size[2]

@@ -22,6 +22,8 @@ from __future__ import annotations
 import argparse
 import os
 
+from gen_suite import GMSH_OPTIONS
+
 BOX_MIN = (260.0, -30.0, 0.0)
 BOX_SIZE = (80.0, 60.0, 60.0)
 LESION_CENTRE = (302.0, 0.0, 35.0)  # the `simple` path's point at s = 0.5
@@ -33,17 +35,9 @@ H_SKIN = 4.0
 
 
 def options(gmsh):
-    for name, v in (
-        ("General.Terminal", 0),
-        ("General.Verbosity", 0),
-        ("General.NumThreads", 1),
-        ("Mesh.Algorithm", 6),  # Frontal-Delaunay surfaces
-        ("Mesh.Algorithm3D", 1),  # Delaunay volume
-        ("Mesh.RandomSeed", 1),
-        ("Mesh.Optimize", 1),
-        ("Mesh.MshFileVersion", 4.1),
-        ("Mesh.Binary", 0),
-        ("Mesh.SaveAll", 0),
+    # The suite's settings (the same mesher, seed and format), with the element size from the
+    # size fields alone.
+    for name, v in GMSH_OPTIONS + (
         ("Mesh.MeshSizeExtendFromBoundary", 0),
         ("Mesh.MeshSizeFromPoints", 0),
         ("Mesh.MeshSizeFromCurvature", 0),
