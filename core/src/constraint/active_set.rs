@@ -6,6 +6,19 @@
 use super::{BASE, BlockGs, KIND_BILATERAL, KIND_CONTACT, KIND_SLIDING, KIND_UNILATERAL};
 use crate::math::{axpy, dot, max_abs};
 
+/// A status correction of [`BlockGs::correct_statuses`].
+#[derive(Clone, Copy, Debug)]
+enum Fix {
+    /// Every force of the group to zero.
+    Close,
+    /// The normal force to the smallest positive value (free at the next factor).
+    Open,
+    /// The tangential pair scaled onto the friction disk.
+    Scale(f64),
+    /// The axial force to this value.
+    Axial(f64),
+}
+
 /// A tied axial row: `dλ_row = c · dλ_(lat, lat+1)` (indices of the lateral rows in the free set).
 #[derive(Clone, Copy, Debug, Default)]
 struct Tied {
@@ -274,6 +287,143 @@ impl<const M: usize> BlockGs<M> {
             lambda[a] = sigma * (mu * libm::hypot(lambda[l], lambda[l + 1]) + r0);
         }
         true
+    }
+
+    /// Newton's method on the active set with the statuses updated between steps (a
+    /// primal-dual active-set method): each round factors the set `lambda` gives
+    /// ([`Self::factor_active_set`]), takes one Newton step on it
+    /// ([`Self::refine_on_active_set`]), then corrects the statuses the step got wrong
+    /// ([`Self::correct_statuses`]): a unilateral or normal force pulled below zero is set to
+    /// zero, a tangential force pushed out of its friction disk back onto it, a closed
+    /// unilateral row that the residual says must push is opened, a free axial force carried
+    /// beyond its bound is put on it (tied), a tied one whose slip runs the wrong way is untied. Stops when a round changes no status and its Newton step is below round-off
+    /// (`true`), or after `max_rounds` rounds or on a singular set (`false`; `lambda` holds the
+    /// last iterate, finite). Gauss-Seidel from a converged answer confirms it in one sweep.
+    ///
+    /// One Newton step alone (what a single refine makes) lands on the solution only when the
+    /// Gauss-Seidel iterate it starts from already has every status right; sliding points
+    /// coupled through a stiff needle make rows nearly parallel, Gauss-Seidel then needs many
+    /// thousands of sweeps to sort the statuses out, and the step's solves hit their cap.
+    pub fn solve_on_active_sets(
+        &self,
+        w: &[[f64; M]; M],
+        delta: &[f64; M],
+        lambda: &mut [f64; M],
+        set: &mut ActiveSet<M>,
+        max_rounds: usize,
+    ) -> bool {
+        for round in 0..max_rounds {
+            if !(self.factor_active_set(w, lambda, set)
+                && self.refine_on_active_set(w, delta, lambda, set))
+            {
+                return false;
+            }
+            let n = set.n;
+            let scale = max_abs(&lambda[..self.m]);
+            let step = max_abs(&set.x[..n]);
+            // All corrections at once converge fastest, but may cycle (every axial row tied,
+            // then every one free, ...): from the fourth round, one at a time.
+            let changed = self.correct_statuses(w, delta, lambda, round >= 3);
+            if !changed && step <= 1e-12 * scale {
+                return true;
+            }
+        }
+        false
+    }
+
+    /// The status corrections of [`Self::solve_on_active_sets`] after a Newton step, all of
+    /// them or (`single`) only the largest, measured as Gauss-Seidel measures a change
+    /// (`|W_ii Δλ_i|`, or the residual that calls for it); `true` when any status changed.
+    fn correct_statuses(
+        &self,
+        w: &[[f64; M]; M],
+        delta: &[f64; M],
+        lambda: &mut [f64; M],
+        single: bool,
+    ) -> bool {
+        let m = self.m;
+        // A residual this small against the problem's scale is round-off, not a wrong status
+        // (a row exactly on its bound with zero slip would otherwise flip at every round).
+        let tol = 1e-10 * max_abs(&delta[..m]);
+        let mut largest: Option<(f64, usize)> = None;
+        for (k, b) in self.blocks[..self.n_blocks].iter().enumerate() {
+            if let Some((size, _)) = self.status_fix(b, w, delta, lambda, tol)
+                && largest.is_none_or(|(l, _)| size > l)
+            {
+                largest = Some((size, k));
+            }
+        }
+        let Some((_, only)) = largest else {
+            return false;
+        };
+        for (k, b) in self.blocks[..self.n_blocks].iter().enumerate() {
+            if single && k != only {
+                continue;
+            }
+            if let Some((_, fix)) = self.status_fix(b, w, delta, lambda, tol) {
+                let s = b.start as usize;
+                match fix {
+                    Fix::Close => lambda[s..s + b.len as usize].fill(0.0),
+                    Fix::Open => lambda[s] = f64::MIN_POSITIVE,
+                    Fix::Scale(f) => {
+                        lambda[s + 1] *= f;
+                        lambda[s + 2] *= f;
+                    }
+                    Fix::Axial(v) => lambda[s + 2] = v,
+                }
+            }
+        }
+        true
+    }
+
+    /// The status correction group `b` needs after a Newton step, with its size, if any: a
+    /// unilateral or normal force below zero closes; a closed row the others press (`w < 0`
+    /// would penetrate) opens; a tangential force out of its disk goes back onto it; a free
+    /// axial force beyond its bound goes onto it (tied next); a tied one whose slip runs the
+    /// wrong way (on `+b` the axial update's fixed point needs `w_a ≤ 0`, on `−b` `w_a ≥ 0`)
+    /// is freed just inside.
+    fn status_fix(
+        &self,
+        b: &super::Block,
+        w: &[[f64; M]; M],
+        delta: &[f64; M],
+        lambda: &[f64; M],
+        tol: f64,
+    ) -> Option<(f64, Fix)> {
+        let (m, s) = (self.m, b.start as usize);
+        let residual = |r: usize| dot(&w[r][..m], &lambda[..m]) - delta[r];
+        match b.kind {
+            KIND_UNILATERAL | KIND_CONTACT => {
+                if lambda[s] < 0.0 {
+                    Some((libm::fabs(w[s][s] * lambda[s]), Fix::Close))
+                } else if lambda[s] == 0.0 {
+                    let r = residual(s);
+                    (r < -tol).then_some((-r, Fix::Open))
+                } else if b.kind == KIND_CONTACT {
+                    let t = libm::hypot(lambda[s + 1], lambda[s + 2]);
+                    let bound = b.mu * lambda[s];
+                    (t > bound * (1.0 + 1e-9))
+                        .then(|| (w[s + 1][s + 1] * (t - bound), Fix::Scale(bound / t)))
+                } else {
+                    None
+                }
+            }
+            KIND_SLIDING => {
+                let a = s + 2;
+                let bound = b.mu * libm::hypot(lambda[s], lambda[s + 1]) + b.r0;
+                let x = libm::fabs(lambda[a]);
+                let sigma = if lambda[a] < 0.0 { -1.0 } else { 1.0 };
+                if x > bound * (1.0 + 1e-9) {
+                    Some((w[a][a] * (x - bound), Fix::Axial(sigma * bound)))
+                } else if bound > 0.0 && x >= bound * (1.0 - 1e-9) {
+                    let r = sigma * residual(a);
+                    (r > tol).then_some((r, Fix::Axial(sigma * bound * (1.0 - 1e-6))))
+                } else {
+                    None
+                }
+            }
+            _ => None,
+        }
     }
 
     /// `(μ_n, r_0)` of the sliding group owning axial row `a`.

@@ -1,0 +1,174 @@
+//! Regression: the constraint solves of sliding points along a stiff needle hit the sweep cap.
+//!
+//! The two problems are taken from real frames of the public suite's `gel_stiff` scene (an 80 kPa
+//! gel, 15 and 18 rows: the 6 needle-base rows and 3 or 4 sliding points), the second at a joint
+//! perturbed as a Jacobian column perturbs it. The sliding points, coupled through the stiff
+//! needle, make rows nearly parallel: projected Gauss-Seidel still moves after 20 000 sweeps, and
+//! a single Newton step on the active set of its iterate lands on the wrong statuses. Whole
+//! steps of the scene hit the 400-sweep cap (148 of its steps before the fix). Newton's method on
+//! the active set with the statuses corrected between steps
+//! ([`BlockGs::solve_on_active_sets`]) solves both; Gauss-Seidel confirms the answer.
+//!
+//! File format (`tests/data/stiff_sliding_m*.txt`): `m`; one line per row group
+//! `kind start len mu r0`; the `m` rows of `W`; `δ` (base rows at the frame's joints).
+#![allow(clippy::expect_used, clippy::unwrap_used, clippy::panic)]
+
+use needle_core::{ActiveSet, BlockGs, GsParams, RowGroup};
+
+const M: usize = 32;
+
+struct Problem {
+    m: usize,
+    groups: Vec<RowGroup>,
+    w: Box<[[f64; M]; M]>,
+    delta: [f64; M],
+}
+
+fn load(name: &str) -> Problem {
+    let path = format!("{}/tests/data/{name}", env!("CARGO_MANIFEST_DIR"));
+    let text = std::fs::read_to_string(&path).expect("test data");
+    let mut lines = text.lines();
+    let m: usize = lines.next().unwrap().trim().parse().unwrap();
+    let mut groups = Vec::new();
+    let mut rows = 0;
+    while rows < m {
+        let f: Vec<&str> = lines.next().unwrap().split_whitespace().collect();
+        let (kind, start, len): (u32, u32, u32) = (
+            f[0].parse().unwrap(),
+            f[1].parse().unwrap(),
+            f[2].parse().unwrap(),
+        );
+        let (mu, r0): (f64, f64) = (f[3].parse().unwrap(), f[4].parse().unwrap());
+        groups.push(match kind {
+            1 => RowGroup::bilateral(start, len),
+            4 => RowGroup::sliding(start, mu, r0),
+            k => panic!("{path}: group kind {k} not expected here"),
+        });
+        rows += len as usize;
+    }
+    let mut w = Box::new([[0.0; M]; M]);
+    for row in w.iter_mut().take(m) {
+        let v: Vec<f64> = lines
+            .next()
+            .unwrap()
+            .split_whitespace()
+            .map(|x| x.parse().unwrap())
+            .collect();
+        row[..m].copy_from_slice(&v);
+    }
+    let mut delta = [0.0; M];
+    let v: Vec<f64> = lines
+        .next()
+        .unwrap()
+        .split_whitespace()
+        .map(|x| x.parse().unwrap())
+        .collect();
+    delta[..m].copy_from_slice(&v);
+    Problem {
+        m,
+        groups,
+        w,
+        delta,
+    }
+}
+
+const GS: GsParams = GsParams {
+    tolerance: 1e-7,
+    max_iterations: 400,
+    polish: false,
+    relaxation: 1.2,
+};
+
+/// Checks the solution's conditions directly (not through the solver's own test): every
+/// bilateral row closed, every axial force within `μ_n |λ_l| + r_0`, closed when inside it and
+/// slipping against the force on it.
+fn assert_solution(p: &Problem, lambda: &[f64; M], what: &str, tolerance: f64) {
+    let m = p.m;
+    let scale = p.delta[..m].iter().fold(0.0f64, |a, x| a.max(x.abs()));
+    let w: Vec<f64> = (0..m)
+        .map(|i| (0..m).map(|j| p.w[i][j] * lambda[j]).sum::<f64>() - p.delta[i])
+        .collect();
+    let tol = 100.0 * tolerance * scale;
+    for g in &p.groups {
+        let s = g.start as usize;
+        if g.kind == RowGroup::bilateral(0, 1).kind {
+            for (i, wi) in w.iter().enumerate().skip(s).take(g.len as usize) {
+                assert!(wi.abs() <= tol, "{what}: bilateral row {i} open by {wi:e}");
+            }
+            continue;
+        }
+        for i in [s, s + 1] {
+            assert!(
+                w[i].abs() <= tol,
+                "{what}: lateral row {i} open by {:e}",
+                w[i]
+            );
+        }
+        let a = s + 2;
+        let bound = g.mu * lambda[s].hypot(lambda[s + 1]) + g.r0;
+        let x = lambda[a].abs();
+        assert!(
+            x <= bound * (1.0 + 1e-6),
+            "{what}: axial row {a} beyond its bound"
+        );
+        if x < bound * (1.0 - 1e-6) {
+            assert!(
+                w[a].abs() <= tol,
+                "{what}: sticking axial row {a} moves by {:e}",
+                w[a]
+            );
+        } else {
+            assert!(
+                lambda[a].signum() * w[a] <= tol,
+                "{what}: axial row {a} slips with its force"
+            );
+        }
+    }
+}
+
+#[test]
+fn stiff_sliding_points_stall_gauss_seidel_at_its_cap() {
+    for name in ["stiff_sliding_m15.txt", "stiff_sliding_m18.txt"] {
+        let p = load(name);
+        let mut gs = BlockGs::<M>::new();
+        gs.prepare(&p.w, p.m, &p.groups).unwrap();
+        let mut lambda = [0.0; M];
+        let r = gs.solve(&p.w, &p.delta, &mut lambda, &GS);
+        assert!(
+            !r.converged,
+            "{name}: plain Gauss-Seidel converged: the problem no longer shows the stall"
+        );
+    }
+}
+
+#[test]
+fn stiff_sliding_points_solved_by_active_set_rounds_within_the_sweep_cap() {
+    // Each at the tolerance the controller solves it to: the frame's own solve (base and final
+    // solves, 1e-7) and a Jacobian column's (`InverseParams::jacobian_tolerance`, 1e-5).
+    for (name, tolerance) in [
+        ("stiff_sliding_m15.txt", 1e-7),
+        ("stiff_sliding_m18.txt", 1e-5),
+    ] {
+        let p = load(name);
+        let gs_params = GsParams { tolerance, ..GS };
+        let mut gs = BlockGs::<M>::new();
+        gs.prepare(&p.w, p.m, &p.groups).unwrap();
+        let mut set = Box::new(ActiveSet::<M>::new());
+        let mut lambda = [0.0; M];
+        // As the controller's solves do: 60 sweeps, the rounds, Gauss-Seidel for what is left.
+        let first = GsParams {
+            max_iterations: 60,
+            ..gs_params
+        };
+        let r1 = gs.solve(&p.w, &p.delta, &mut lambda, &first);
+        assert!(!r1.converged);
+        gs.solve_on_active_sets(&p.w, &p.delta, &mut lambda, &mut set, 12);
+        let rest = GsParams {
+            max_iterations: GS.max_iterations - r1.iterations,
+            ..gs_params
+        };
+        let r2 = gs.solve(&p.w, &p.delta, &mut lambda, &rest);
+        assert!(r2.converged, "{name}: not converged: {r2:?}");
+        assert_solution(&p, &lambda, name, tolerance);
+    }
+}
