@@ -23,6 +23,9 @@ const SCHUR: &str = "W without the base rows, W_oo - W_ob W_bb^-1 W_bo";
 /// Sweeps after which a reduced solve that has not converged is polished on its active set.
 const POLISH_AFTER: u32 = 60;
 
+/// Most active-set polishes of one reduced solve, [`POLISH_AFTER`] sweeps apart.
+const POLISH_TIMES: u32 = 3;
+
 /// Most rounds (factor, Newton step, status correction) of an active-set polish
 /// ([`BlockGs::solve_on_active_sets`]). On the frames whose solves hit the sweep cap in the suite's
 /// hardest scenes (sliding points along a curving path) it needs 2–10.
@@ -170,10 +173,21 @@ impl<const M: usize, const N: usize> Controller<M, N> {
                 ..SolveReport::default()
             }
         };
-        if !rep.converged {
+        // Polish, then Gauss-Seidel for at most as many sweeps again; should that not converge
+        // (the rounds ran out on statuses that cycle), polish once more from the new iterate,
+        // then Gauss-Seidel for whatever the cap leaves.
+        for polish in 0..POLISH_TIMES {
+            if rep.converged {
+                break;
+            }
             self.polish_reduced(frame, d, target);
+            let left = gs.max_iterations.saturating_sub(rep.iterations);
             let left = GsParams {
-                max_iterations: gs.max_iterations.saturating_sub(rep.iterations),
+                max_iterations: if polish + 1 < POLISH_TIMES {
+                    left.min(POLISH_AFTER)
+                } else {
+                    left
+                },
                 ..*gs
             };
             let r2 = self
