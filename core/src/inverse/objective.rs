@@ -75,6 +75,24 @@ fn rotation_between(from: &Vector3<f64>, to: &Vector3<f64>) -> ([f64; 3], f64) {
     }
 }
 
+/// The direction the tip should point along: the path's tangent `t̂` at the target, plus, once
+/// inserted and with a look-ahead `l` > 0, the tip's error `e` to the target over `l`
+/// (`l t̂ + e`, the direction from the tip to the point `l` ahead of the target along the
+/// tangent). The tangent alone when that vector vanishes.
+pub(super) fn aim_direction(
+    inserted: bool,
+    l: f64,
+    tangent: &Vector3<f64>,
+    e: &Vector3<f64>,
+) -> Vector3<f64> {
+    let n = tangent.norm();
+    if !inserted || !(l > 0.0) || !(n > 0.0) {
+        return *tangent;
+    }
+    let aim = tangent * (l / n) + e;
+    if aim.norm() > 0.0 { aim } else { *tangent }
+}
+
 /// The objective for constraint forces `lambda` and needle-base pose `b` (from forward
 /// kinematics), see the module docs.
 pub fn evaluate_objective<const M: usize, const N: usize>(
@@ -90,7 +108,13 @@ pub fn evaluate_objective<const M: usize, const N: usize>(
     let tangent = v(ObsIndex::TARGET_TANGENT);
     let entry = v(ObsIndex::ENTRY_POINT);
     let e = target - tip;
-    let (phi1, theta1) = rotation_between(&tangent, &tip_dir);
+    // The look-ahead belongs to the QP update; the paper's update keeps the paper's θ1.
+    let look_ahead = match params.method {
+        super::StepMethod::Qp => params.aim_ahead,
+        super::StepMethod::Paper => 0.0,
+    };
+    let heading = aim_direction(frame.inserted != 0, look_ahead, &tangent, &e);
+    let (phi1, theta1) = rotation_between(&heading, &tip_dir);
     let (phi2, theta2) = rotation_between(&(entry - b.translation), &b.z_axis());
     let k = blend_factor(
         frame.inserted != 0,

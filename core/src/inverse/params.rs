@@ -118,6 +118,11 @@ pub struct InverseParams {
     /// drifts off a curving path and cannot be brought back (the complex scene ended 4.3 mm
     /// from its target with the blend, 0.001 mm with θ1 kept; `docs/benchmark.md`).
     pub qp_heading: bool,
+    /// Look-ahead of the heading θ1 once inserted [mm] (0: the path's tangent alone): the tip is
+    /// asked to point along `L t̂ + e`, the path's tangent `t̂` at the target plus the tip's error
+    /// `e` to the target over this distance, so that a tip off the path cuts back towards it
+    /// over about `L` of insertion (a pure-pursuit law) instead of running parallel to it.
+    pub aim_ahead: f64,
 }
 
 // SAFETY: `#[repr(u8)]` and the variant `Solve` has the discriminant 0.
@@ -146,6 +151,7 @@ crate::zeroed::impl_zeroable!(InverseParams {
     qp_angle_weight,
     limit_avoidance,
     qp_heading,
+    aim_ahead,
 });
 
 impl Default for InverseParams {
@@ -178,6 +184,7 @@ impl Default for InverseParams {
             qp_angle_weight: 10.0,
             limit_avoidance: 0.5,
             qp_heading: true,
+            aim_ahead: 0.0,
         }
     }
 }
@@ -214,6 +221,7 @@ impl InverseParams {
             (nonneg(self.clearance_margin), "clearance_margin"),
             (nonneg(self.qp_angle_weight), "qp_angle_weight"),
             (nonneg(self.limit_avoidance), "limit_avoidance"),
+            (nonneg(self.aim_ahead), "aim_ahead"),
         ];
         for (ok, name) in checks {
             if !ok {

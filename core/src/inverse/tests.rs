@@ -324,3 +324,28 @@ fn qp_step_never_leaves_the_tip_farther_than_it_found_it() {
     std::println!("{shortened} of 300 steps shortened");
     assert!(shortened > 0, "no frame exercised the test");
 }
+
+/// `InverseParams::aim_ahead`: once inserted, a tip off the path is asked to point back towards
+/// it, at the point `l` ahead of the target along the tangent; the tangent alone in the air, with
+/// no look-ahead, or on the path.
+#[test]
+fn aim_ahead_points_the_heading_back_towards_the_path() {
+    use super::objective::aim_direction;
+    use nalgebra::Vector3;
+    let t = Vector3::new(0.0, 0.0, -2.0); // any length
+    let e = Vector3::new(1.0, 0.0, 0.0); // target − tip: the tip 1 mm off in −x
+    let aim = aim_direction(true, 5.0, &t, &e);
+    let expect = Vector3::new(1.0, 0.0, -5.0);
+    assert!(
+        (aim.normalize() - expect.normalize()).norm() < 1e-15,
+        "{aim:?}"
+    );
+    for (inserted, l) in [(false, 5.0), (true, 0.0)] {
+        assert_eq!(aim_direction(inserted, l, &t, &e), t);
+    }
+    let on_path = aim_direction(true, 5.0, &t, &Vector3::zeros());
+    assert!((on_path.normalize() - t.normalize()).norm() < 1e-15);
+    // The heading error the QP corrects: 1 mm off over 5 mm ahead is atan(1/5).
+    let theta = crate::math::angle_between(&aim, &t);
+    assert!((theta - (0.2f64).atan()).abs() < 1e-12, "{theta}");
+}

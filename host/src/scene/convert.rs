@@ -126,6 +126,7 @@ impl Scene {
             clearance_margin: v.clearance_margin,
             qp_angle_weight: v.qp_angle_weight,
             qp_heading: v.qp_heading,
+            aim_ahead: v.aim_ahead,
             jacobian: match v.jacobian {
                 super::JacobianSpec::Solve => JacobianMode::Solve,
                 super::JacobianSpec::Linearized => JacobianMode::Linearized,

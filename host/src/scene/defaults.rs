@@ -94,6 +94,10 @@ pub(super) fn default_qp_angle_weight() -> f64 {
 pub(super) fn default_qp_heading() -> bool {
     InverseParams::default().qp_heading
 }
+
+pub(super) fn default_aim_ahead() -> f64 {
+    InverseParams::default().aim_ahead
+}
 pub(super) fn default_jacobian() -> JacobianSpec {
     JacobianSpec::Hybrid
 }

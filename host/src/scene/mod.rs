@@ -370,6 +370,9 @@ pub struct InverseSpec {
     /// distance).
     #[serde(default = "default_qp_heading")]
     pub qp_heading: bool,
+    /// Look-ahead of the tip's heading once inserted [mm] (0: the path's tangent alone).
+    #[serde(default = "default_aim_ahead")]
+    pub aim_ahead: f64,
 }
 
 /// How the inverse controller chooses the joint update.
@@ -408,6 +411,7 @@ impl Default for InverseSpec {
             clearance_margin: default_clearance_margin(),
             qp_angle_weight: default_qp_angle_weight(),
             qp_heading: default_qp_heading(),
+            aim_ahead: default_aim_ahead(),
         }
     }
 }
