@@ -28,4 +28,5 @@ pub mod scene;
 pub mod setup;
 pub mod step;
 pub mod suite;
+pub mod support_motion;
 pub mod world;

@@ -17,6 +17,7 @@ use crate::free_motion::{
 use crate::mesh::{TetMesh, box_mesh, read_mesh};
 use crate::scene::{GelSolveSpec, InsertionMode, Scene};
 use crate::step::{Insertion, Interaction, StepParams, TargetMotion};
+use crate::support_motion::SupportMotion;
 use crate::world::{World, WorldParts, node_frame_offset};
 use nalgebra::{Isometry3, Rotation3, Translation3, UnitQuaternion, Vector3};
 use needle_core::ik::{IkParams, solve_ik};
@@ -49,6 +50,9 @@ pub struct Setup {
     pub inverse: InverseParams,
     /// What a run plans.
     pub plan: Plan,
+    /// With `gel.support_motion.hidden`: the controller's model, the same world without the
+    /// support motion (the controller steers on it, its joints drive `world`); none otherwise.
+    pub model: Option<Box<World>>,
 }
 
 impl Setup {
@@ -103,8 +107,17 @@ impl Setup {
             path,
             obstacles,
             q,
+            support_motion: support_motion(scene)?,
         })?;
         crate::plan_check::check(scene, &world)?;
+        let model = match &scene.gel.support_motion {
+            Some(m) if m.hidden => {
+                let mut still = scene.clone();
+                still.gel.support_motion = None;
+                Some(Box::new(Self::build(&still)?.world))
+            }
+            _ => None,
+        };
         tracing::info!(
             "scene `{}` set up in {:.2} s: {} gel nodes, needle of {} beams",
             scene.name,
@@ -118,7 +131,38 @@ impl Setup {
             robot,
             inverse: scene.inverse_params(),
             plan: plan(scene),
+            model,
         })
+    }
+}
+
+/// The support motion of `scene` (`gel.support_motion`), its CSV file read.
+///
+/// # Errors
+/// [`SetupError::Plan`] naming the field, and for a CSV file the file, the line and the reason.
+pub fn support_motion(scene: &Scene) -> Result<Option<SupportMotion>, SetupError> {
+    let Some(m) = &scene.gel.support_motion else {
+        return Ok(None);
+    };
+    match (&m.breathing, &m.csv) {
+        (Some(b), _) => SupportMotion::breathing(b.amplitude, b.period, b.direction, b.phase)
+            .map(Some)
+            .map_err(|reason| SetupError::Plan {
+                field: "gel.support_motion.breathing".into(),
+                reason,
+            }),
+        (None, Some(file)) => {
+            SupportMotion::from_csv(file)
+                .map(Some)
+                .map_err(|e| SetupError::Plan {
+                    field: "gel.support_motion.csv".into(),
+                    reason: e.to_string(),
+                })
+        }
+        (None, None) => Err(SetupError::Plan {
+            field: "gel.support_motion".into(),
+            reason: "give `breathing` or `csv`".into(),
+        }),
     }
 }
 

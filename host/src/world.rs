@@ -10,6 +10,7 @@ use crate::error::SetupError;
 use crate::free_motion::{GelModel, NeedleModel};
 use crate::proximity::{Embedded, TetLocator};
 use crate::scene::SampledPath;
+use crate::support_motion::SupportMotion;
 use nalgebra::{Matrix3, Rotation3, Vector3};
 use needle_core::kinematics::{Kinematics, Pose, Robot};
 use needle_core::payload::JOINTS;
@@ -39,6 +40,8 @@ pub struct WorldParts {
     pub obstacles: Vec<(Vector3<f64>, f64)>,
     /// Start joints [rad].
     pub q: [f64; JOINTS],
+    /// A prescribed motion of the gel's fixed nodes (none: they stay at rest).
+    pub support_motion: Option<SupportMotion>,
 }
 
 /// The whole simulated system and its interaction state.
@@ -80,6 +83,10 @@ pub struct World {
     pub steps: usize,
     /// Needle node frame → needle-base frame `B` offset: `R_node = R_B · r_off`.
     pub(crate) r_off: Matrix3<f64>,
+    /// The prescribed motion of the gel's fixed nodes (none: they stay at rest).
+    pub support_motion: Option<SupportMotion>,
+    /// The support's current displacement from rest (zero without motion) [mm].
+    pub support_offset: Vector3<f64>,
 }
 
 /// The fixed rotation `r_off` between the needle-base frame `B` (needle along its z axis) and the
@@ -148,6 +155,7 @@ impl World {
             path,
             obstacles,
             q,
+            support_motion,
         } = parts;
         let mesh = gel.mesh();
         let (rest, tets) = (&mesh.nodes, &mesh.tets);
@@ -191,7 +199,24 @@ impl World {
             c: 0.0,
             steps: 0,
             r_off,
+            support_motion,
+            support_offset: Vector3::zeros(),
         })
+    }
+
+    /// Moves the gel's fixed nodes to their prescribed positions at time `t` [s]: rest
+    /// position + the support motion's displacement `d(t)` (nothing without a motion). This is
+    /// the inhomogeneous Dirichlet condition of the next free motion: the fixed dofs stay
+    /// eliminated from the system, so `K⁻¹` (and the compliance `W`) is the same operator as
+    /// with a still support; the moved nodes enter through the internal forces `f_int(x)` of the
+    /// right-hand side, and the free motion carries the free nodes along.
+    pub fn move_support(&mut self, t: f64) {
+        let Some(motion) = &self.support_motion else {
+            return;
+        };
+        let d = motion.displacement(t);
+        self.support_offset = d;
+        self.gel.displace_support(&d);
     }
 
     /// Needle-base pose `B(q)` in the world.
@@ -215,11 +240,12 @@ impl World {
         e.position(self.gel.positions(), &self.gel.mesh().tets)
     }
 
-    /// The target point for arc length `c`: in the air on the approach segment (fixed in the
-    /// world), inside the gel embedded at its rest barycentric coordinates (moves with the gel).
+    /// The target point for arc length `c`: in the air on the approach segment (fixed to the
+    /// gel's support: it moves by the support's displacement), inside the gel embedded at its
+    /// rest barycentric coordinates (moves with the gel).
     ///
     /// Until the tip has punctured the surface the target stays the rest-configuration path
-    /// point, fixed in the world: the tip pressing on the surface indents the gel, and a target
+    /// point (carried by the support's displacement, if any): the tip pressing on the surface indents the gel, and a target
     /// embedded below it would recede with that indentation — the controller would chase it
     /// sideways instead of pushing through. Once punctured, the target is embedded.
     pub fn target_embedding(&self, c: f64) -> Option<Embedded> {
@@ -239,11 +265,12 @@ impl World {
             .is_some_and(|e| e.weights.iter().all(|w| *w >= -0.01))
     }
 
-    /// Current target point [mm].
+    /// Current target point [mm]: embedded in the gel ([`World::target_embedding`]), else the
+    /// rest path's point carried by the support's displacement (zero without a support motion).
     pub fn target(&self, c: f64) -> Vector3<f64> {
         match self.target_embedding(c) {
             Some(e) => self.gel_point(&e),
-            None => self.path.at(c).0,
+            None => self.path.at(c).0 + self.support_offset,
         }
     }
 

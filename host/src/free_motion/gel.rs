@@ -208,6 +208,19 @@ impl FeModel<Tets> {
         &self.elements.fixed_nodes
     }
 
+    /// Places every clamped node at its rest position + `d` [mm] (a rigid translation of the
+    /// support: an inhomogeneous Dirichlet condition). The free nodes are not moved: the next
+    /// free motion carries them along, its right-hand side `−f_int(x)` holding the strain of
+    /// the moved support.
+    pub fn displace_support(&mut self, d: &Vector3<f64>) {
+        let Tets {
+            mesh, fixed_nodes, ..
+        } = &self.elements;
+        for &i in fixed_nodes {
+            self.positions[i] = mesh.nodes[i] + d;
+        }
+    }
+
     /// Mutable node positions [mm] (e.g. to prescribe the displacement of fixed nodes).
     pub fn positions_mut(&mut self) -> &mut [Vector3<f64>] {
         &mut self.positions

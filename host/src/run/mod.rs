@@ -254,6 +254,33 @@ fn naive_replay(
     (Some(replay), stop)
 }
 
+/// A support motion hidden from the controller's model (`gel.support_motion.hidden`): the
+/// controller steers `model` — the world without the support motion, its target on the path of
+/// a gel whose support stays still — and its joints drive the moving world open loop (one
+/// constraint solve at the model's joints per step), where the error is measured. The
+/// controller sees nothing of the motion, not even through the needle: the model is a closed
+/// simulation, as the controller's model of a real patient would be.
+struct HiddenMotion {
+    model: Box<World>,
+    pipeline: Pipeline,
+    replay: OpenLoop,
+}
+
+impl HiddenMotion {
+    /// One step: the model's (through the controller), then the world's at the model's joints.
+    fn step(
+        &mut self,
+        pipeline: &mut Pipeline,
+        world: &mut World,
+        params: &crate::step::StepParams,
+        controller: &mut dyn Transport<ROWS>,
+    ) -> Result<StepReport, crate::error::SimError> {
+        let m = self.pipeline.step(&mut self.model, params, controller)?;
+        self.replay.joints.push(m.q);
+        pipeline.step(world, params, &mut self.replay)
+    }
+}
+
 /// The run's own checks and records of each step: divergence checks, statistics, files.
 struct Books {
     stats: Statistics,
@@ -355,10 +382,19 @@ pub fn run_setup_until(
         robot,
         inverse,
         plan,
+        model,
     } = setup;
     let steps = opts.steps.unwrap_or(plan.steps);
     let vtk_every = opts.vtk_every.unwrap_or(plan.vtk_every);
     let files = outputs(opts, vtk_every, &plan, params.dt, &world)?;
+    let mut hidden = match (opts.controller, model) {
+        (ControllerKind::Inverse, Some(model)) => Some(HiddenMotion {
+            pipeline: Pipeline::new(&model),
+            model,
+            replay: OpenLoop::new(robot.clone(), inverse, Vec::new()),
+        }),
+        _ => None,
+    };
     let (mut open_loop, mut stopped) = match opts.controller {
         ControllerKind::Inverse => (None, None),
         ControllerKind::Naive => naive_replay(&world, &params, robot, inverse, steps),
@@ -389,7 +425,11 @@ pub fn run_setup_until(
             break;
         }
         remote.pace(world.c);
-        let r = match pipeline.step(&mut world, &params, &mut remote) {
+        let step = match hidden.as_mut() {
+            None => pipeline.step(&mut world, &params, &mut remote),
+            Some(h) => h.step(&mut pipeline, &mut world, &params, &mut remote),
+        };
+        let r = match step {
             Ok(r) => r,
             Err(e) => {
                 stopped = Some((k, remote.why_stopped(&e)));

@@ -83,6 +83,17 @@ impl Scene {
         {
             *mesh = dir.join(&*mesh);
         }
+        if let (Some(csv), Some(dir)) = (
+            scene
+                .gel
+                .support_motion
+                .as_mut()
+                .and_then(|m| m.csv.as_mut()),
+            path.parent(),
+        ) && csv.is_relative()
+        {
+            *csv = dir.join(&*csv);
+        }
         if let (Some(urdf), Some(dir)) = (scene.robot.urdf.as_mut(), path.parent())
             && urdf.is_relative()
         {

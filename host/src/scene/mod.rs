@@ -214,6 +214,44 @@ pub struct GelSpec {
     /// the gel's own `young_modulus`, `poisson_ratio` and `density`.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub regions: Vec<RegionSpec>,
+    /// A prescribed motion of the fixed nodes (`[gel.support_motion]`): breathing or a CSV
+    /// table; none: the support never moves.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub support_motion: Option<SupportMotionSpec>,
+}
+
+/// A prescribed displacement of the gel's fixed nodes over time (every fixed node moves by the
+/// same `d(t)`): exactly one of `breathing` and `csv`.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct SupportMotionSpec {
+    /// A periodic breathing motion.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub breathing: Option<BreathingSpec>,
+    /// A CSV file of `t, dx, dy, dz` [s, mm] rows, relative to the scene file (linear
+    /// interpolation).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub csv: Option<PathBuf>,
+    /// Hide the motion from the controller's model: the controller steers on a model whose
+    /// support does not move (the scene without the motion), and its joints drive the moving
+    /// world, where the error is measured.
+    #[serde(default)]
+    pub hidden: bool,
+}
+
+/// `d(t) = amplitude · (1 − cos(2π t / period + phase)) / 2 · direction / |direction|`.
+#[derive(Clone, Copy, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct BreathingSpec {
+    /// Peak-to-peak travel of the support [mm].
+    pub amplitude: f64,
+    /// Period [s].
+    pub period: f64,
+    /// Direction of the travel (normalised; any non-zero vector).
+    pub direction: [f64; 3],
+    /// Phase [rad] (0: the motion starts at rest, at zero velocity).
+    #[serde(default)]
+    pub phase: f64,
 }
 
 /// The material of one region of the gel mesh: the elements whose Gmsh physical volume tag (or
@@ -250,6 +288,7 @@ impl Default for GelSpec {
             density: default_gel_rho(),
             fixed: default_fixed(),
             regions: Vec::new(),
+            support_motion: None,
         }
     }
 }

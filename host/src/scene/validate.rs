@@ -261,6 +261,47 @@ impl Scene {
                 "no node is fixed: the gel would float away (give `below_z` or `nodes`)",
             );
         }
+        if let Some(m) = &g.support_motion {
+            match (&m.breathing, &m.csv) {
+                (Some(_), Some(_)) => {
+                    return fail(
+                        "gel.support_motion",
+                        "give either `breathing` or `csv`, not both",
+                    );
+                }
+                (None, None) => {
+                    return fail("gel.support_motion", "give `breathing` or `csv`");
+                }
+                (Some(b), None) => {
+                    // Up to a metre of travel, periods from 10 ms to a day.
+                    within(
+                        "gel.support_motion.breathing.amplitude",
+                        b.amplitude,
+                        0.0,
+                        1000.0,
+                        "[mm]",
+                    )?;
+                    within(
+                        "gel.support_motion.breathing.period",
+                        b.period,
+                        1e-2,
+                        86400.0,
+                        "[s]",
+                    )?;
+                    finite("gel.support_motion.breathing.phase", b.phase)?;
+                    for (i, v) in b.direction.iter().enumerate() {
+                        finite(&format!("gel.support_motion.breathing.direction[{i}]"), *v)?;
+                    }
+                    if b.direction.iter().all(|v| *v == 0.0) {
+                        return fail(
+                            "gel.support_motion.breathing.direction",
+                            "must be a non-zero vector",
+                        );
+                    }
+                }
+                (None, Some(_)) => {}
+            }
+        }
         for (i, r) in g.regions.iter().enumerate() {
             let field = |name: &str| format!("gel.regions[{i}].{name}");
             if let Some(j) = g.regions[..i].iter().position(|o| o.tag == r.tag) {

@@ -214,7 +214,8 @@ impl Pipeline {
         let mut times = StageTimes::default();
         let mut t = Instant::now();
 
-        // 1. Free motion.
+        // 1. Free motion, the gel's support at its prescribed place at the end of the step.
+        world.move_support((world.steps + 1) as f64 * params.dt);
         self.free_motion(world)?;
         times.fm = lap(&mut t);
 

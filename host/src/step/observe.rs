@@ -126,7 +126,8 @@ fn gel_observation(map: PointMap, free: Vector3<f64>) -> Observation {
 }
 
 /// The target point and tangent: embedded in the gel (the tangent as the difference quotient
-/// over [`TANGENT_STEP`]) once both are inside it, else the rest path's, fixed in the world.
+/// over [`TANGENT_STEP`]) once both are inside it, else the rest path's, carried by the support's
+/// displacement (fixed in the world without a support motion).
 fn target_observations(world: &World, free: &FreePositions, c: f64) -> (Observation, Observation) {
     let fixed = PointMap::weighted([]);
     match (
@@ -150,6 +151,7 @@ fn target_observations(world: &World, free: &FreePositions, c: f64) -> (Observat
         }
         (a, _) => {
             let (p, t) = world.path.at(c);
+            let p = p + world.support_offset;
             let target = match a {
                 Some(a) => gel_observation(gel_map(world, &a), free.gel_point(world, &a)),
                 None => gel_observation(fixed, p),
