@@ -1,0 +1,310 @@
+//! A prescribed motion of the gel's support (`[gel.support_motion]`): the fixed nodes follow it
+//! (inhomogeneous Dirichlet conditions), the path and obstacles move with the gel, and the
+//! motion can be hidden from the controller's model.
+
+use nalgebra::Vector3;
+use needle_host::free_motion::{GelModel, GelParams};
+use needle_host::mesh::{BoxDivisions, box_mesh_with_divisions};
+use needle_host::run::{Outcome, RunOptions, RunResult, run};
+use needle_host::scene::Scene;
+use needle_host::setup::Setup;
+use needle_host::support_motion::SupportMotion;
+use std::path::{Path, PathBuf};
+
+fn scene(base: &str, overrides: &[(&str, &str)]) -> Scene {
+    let overrides: Vec<(String, String)> = overrides
+        .iter()
+        .map(|(f, v)| (f.to_string(), v.to_string()))
+        .collect();
+    let s = match Scene::builtin(base) {
+        Some(s) => s,
+        None => Scene::load(Path::new(base)).unwrap(),
+    };
+    s.with_overrides(&overrides).unwrap()
+}
+
+fn run_steps(s: &Scene, steps: usize) -> RunResult {
+    let opts = RunOptions {
+        steps: Some(steps),
+        ..RunOptions::default()
+    };
+    run(s, &opts, |_| {}).unwrap()
+}
+
+const BREATHING_X: &str = "{amplitude = 5.0, period = 4.0, direction = [1.0, 0.0, 0.0]}";
+
+/// A clamped box whose support is moved rigidly by `d` settles, by the corotational free motion
+/// alone, into the box moved rigidly by `d`: every node within 1e-9 |d|, no internal force,
+/// no stress.
+#[test]
+fn a_gel_whose_support_moves_rigidly_moves_rigidly() {
+    let mesh = box_mesh_with_divisions(
+        Vector3::new(260.0, -30.0, 0.0),
+        Vector3::new(340.0, 30.0, 60.0),
+        BoxDivisions {
+            nx: 8,
+            ny: 6,
+            nz: 6,
+        },
+    );
+    let bottom = mesh.nodes_on_plane(2, 0.0, 1e-9);
+    let params = GelParams {
+        elasticity: needle_host::fem::Elasticity {
+            young_modulus: 0.02,
+            poisson_ratio: 0.45,
+        },
+        ..GelParams::default()
+    };
+    for d in [
+        Vector3::new(5.0, 0.0, 0.0),
+        Vector3::new(0.0, 0.0, 5.0),
+        Vector3::new(-3.0, 4.0, 2.5),
+    ] {
+        let mut gel = GelModel::try_new(mesh.clone(), &bottom, &params).unwrap();
+        gel.displace_support(&d);
+        let mut steps = 0;
+        for _ in 0..20 {
+            steps += 1;
+            let dx = gel.free_motion_unloaded().unwrap().to_vec();
+            gel.apply_displacement(&dx).unwrap();
+            if dx.iter().fold(0.0f64, |m, v| m.max(v.abs())) < 1e-13 * d.norm() {
+                break;
+            }
+        }
+        let off = gel
+            .positions()
+            .iter()
+            .zip(&gel.mesh().nodes)
+            .map(|(x, x0)| (x - x0 - d).norm())
+            .fold(0.0, f64::max);
+        println!("support moved by {d:?}: {steps} Newton steps, farthest node {off:e} mm off");
+        assert!(
+            off <= 1e-9 * d.norm(),
+            "a node is {off:e} mm off the rigid motion"
+        );
+        let f = gel.compute_internal_forces();
+        let fmax = f.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        // Against the force scale of the displacement: E · |d| · element size (≈ 10 mm).
+        assert!(
+            fmax < 1e-9 * 0.02 * d.norm() * 10.0,
+            "internal force {fmax:e} N"
+        );
+        let positions = gel.positions().to_vec();
+        let vm = (0..gel.tetra().len())
+            .map(|e| gel.tetra().element_state(e, &positions).von_mises)
+            .fold(0.0, f64::max);
+        assert!(vm < 1e-12, "von Mises stress {vm:e} MPa");
+    }
+}
+
+/// At t = 0 a breathing motion (phase 0) is no motion, and a run under a zero-amplitude motion
+/// is the run without motion, bit for bit.
+#[test]
+fn prescribed_motion_at_t0_is_no_motion() {
+    let m = SupportMotion::breathing(5.0, 4.0, [1.0, 0.0, 0.0], 0.0).unwrap();
+    assert_eq!(m.displacement(0.0), Vector3::zeros());
+    let still = scene("simple", &[("gel.box.nodes", "300")]);
+    let mut setup = Setup::build(&scene(
+        "simple",
+        &[
+            ("gel.box.nodes", "300"),
+            ("gel.support_motion.breathing", BREATHING_X),
+        ],
+    ))
+    .unwrap();
+    let rest = setup.world.gel.positions().to_vec();
+    setup.world.move_support(0.0);
+    assert_eq!(setup.world.gel.positions(), &rest[..]);
+
+    let zero = scene(
+        "simple",
+        &[
+            ("gel.box.nodes", "300"),
+            (
+                "gel.support_motion.breathing",
+                "{amplitude = 0.0, period = 4.0, direction = [1.0, 0.0, 0.0]}",
+            ),
+        ],
+    );
+    let (a, b) = (run_steps(&still, 150), run_steps(&zero, 150));
+    assert!(
+        a.reports.iter().any(|r| r.inserted),
+        "the run should puncture"
+    );
+    for (x, y) in a.reports.iter().zip(&b.reports) {
+        assert_eq!(
+            (x.tip, x.target, x.q),
+            (y.tip, y.target, y.q),
+            "step {}",
+            x.step
+        );
+    }
+}
+
+/// Before puncture the target is the rest path's point carried by the support; the motion
+/// hidden from the model leaves the controller's joints exactly those of the run without motion
+/// (it sees nothing of it), while the world and its target move.
+#[test]
+fn target_moves_with_the_support_and_the_hidden_motion_leaves_the_joints_unchanged() {
+    let still = run_steps(&scene("simple", &[("gel.box.nodes", "300")]), 160);
+    let moving = |hidden: &str| {
+        run_steps(
+            &scene(
+                "simple",
+                &[
+                    ("gel.box.nodes", "300"),
+                    ("gel.support_motion.breathing", BREATHING_X),
+                    ("gel.support_motion.hidden", hidden),
+                ],
+            ),
+            160,
+        )
+    };
+    let (modelled, hidden) = (moving("false"), moving("true"));
+    let m = SupportMotion::breathing(5.0, 4.0, [1.0, 0.0, 0.0], 0.0).unwrap();
+    let dt = 0.04;
+    let mut air = 0;
+    for (s, r) in still.reports.iter().zip(&modelled.reports) {
+        if r.inserted || s.inserted {
+            break;
+        }
+        air += 1;
+        let d = m.displacement((r.step + 1) as f64 * dt);
+        assert!(
+            (r.target - s.target - d).norm() < 1e-12,
+            "step {}: target moved by {:?}, support by {d:?}",
+            r.step,
+            r.target - s.target
+        );
+    }
+    assert!(air > 50, "{air} steps in the air");
+    assert!(modelled.reports.iter().any(|r| r.inserted));
+    // Hidden: the joints are the still run's, bit for bit; the world's target moved.
+    assert_eq!(hidden.reports.len(), still.reports.len());
+    for (s, h) in still.reports.iter().zip(&hidden.reports) {
+        assert_eq!(s.q, h.q, "step {}", s.step);
+    }
+    let last = hidden.reports.len() - 1;
+    let moved = (hidden.reports[last].target - still.reports[last].target).norm();
+    println!("hidden: the world's target is {moved:.3} mm from the model's at the last step");
+    assert!(moved > 1.0);
+}
+
+fn temp_csv(name: &str, text: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("needle-support-motion-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let p = dir.join(name);
+    std::fs::write(&p, text).unwrap();
+    p
+}
+
+fn setup_error(csv: &Path) -> String {
+    let s = scene(
+        "simple",
+        &[
+            ("gel.box.nodes", "300"),
+            (
+                "gel.support_motion.csv",
+                &format!("{:?}", csv.display().to_string()),
+            ),
+        ],
+    );
+    match Setup::build(&s) {
+        Ok(_) => panic!("{} should be refused", csv.display()),
+        Err(e) => e.to_string(),
+    }
+}
+
+#[test]
+fn csv_motion_errors_name_the_file_the_line_and_the_reason() {
+    let bad = temp_csv("bad.csv", "t,dx,dy,dz\n0,0,0,0\n1.0,0.5,x,0\n");
+    let e = setup_error(&bad);
+    assert_eq!(
+        e,
+        format!(
+            "gel.support_motion.csv: {}: line 3: `dy` is not a number: `x`",
+            bad.display()
+        )
+    );
+    let short = temp_csv("short.csv", "0,0,0,0\n1,2,3\n");
+    assert!(setup_error(&short).contains("line 2: expected 4 fields"));
+    let back = temp_csv("back.csv", "0,0,0,0\n2,0,0,1\n1,0,0,2\n");
+    assert!(setup_error(&back).contains("line 3: `t` must increase"));
+    let missing = bad.with_file_name("missing.csv");
+    assert!(setup_error(&missing).contains("cannot read"));
+    // A good table runs, and drives the support: 2 mm along y after 1 s.
+    let good = temp_csv("good.csv", "t, dx, dy, dz\n0, 0, 0, 0\n1, 0, 2, 0\n");
+    let s = scene(
+        "simple",
+        &[
+            ("gel.box.nodes", "300"),
+            (
+                "gel.support_motion.csv",
+                &format!("{:?}", good.display().to_string()),
+            ),
+        ],
+    );
+    let r = run_steps(&s, 30);
+    let mut setup = Setup::build(&s).unwrap();
+    setup.world.move_support(1.0);
+    assert_eq!(setup.world.support_offset, Vector3::new(0.0, 2.0, 0.0));
+    assert_eq!(r.reports.len(), 30);
+    // Both `breathing` and `csv`, or neither: refused by the scene's validation, naming the field.
+    let both = Scene::builtin("simple").unwrap().with_overrides(&[
+        ("gel.support_motion.breathing".into(), BREATHING_X.into()),
+        ("gel.support_motion.csv".into(), "\"m.csv\"".into()),
+    ]);
+    assert!(both.unwrap_err().to_string().contains("gel.support_motion"));
+    let zero_dir = Scene::builtin("simple").unwrap().with_overrides(&[(
+        "gel.support_motion.breathing".into(),
+        "{amplitude = 5.0, period = 4.0, direction = [0.0, 0.0, 0.0]}".into(),
+    )]);
+    assert!(
+        zero_dir
+            .unwrap_err()
+            .to_string()
+            .contains("gel.support_motion.breathing.direction")
+    );
+}
+
+/// `scenes/tissue/breathing_complex.toml`: the complex insertion with its support breathing
+/// 5 mm every 4 s across the insertion, with the motion modelled (target: e_mean and e_final
+/// ≤ 1.0 mm) and hidden from the model. Bounds: the figures measured when this was written
+/// (modelled 0.118 / 1.255 / 0.006 mm; hidden 0.614 / 1.707 / 1.207 mm) with a small margin.
+#[test]
+#[ignore = "two complex insertions, about 30 s in release"]
+fn breathing_complex_tracks_the_moving_path_when_the_motion_is_modelled() {
+    let file = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../scenes/tissue/breathing_complex.toml"
+    );
+    let modelled = run(&scene(file, &[]), &RunOptions::default(), |_| {}).unwrap();
+    let s = &modelled.summary;
+    println!(
+        "modelled: e_mean {:.3} e_max {:.3} e_final {:.4} mm, {:?}",
+        s.e_mean_mm, s.e_max_mm, s.e_final_mm, s.outcome
+    );
+    assert_eq!(s.outcome, Outcome::Reached);
+    assert!(s.e_mean_mm <= 0.15, "e_mean {}", s.e_mean_mm);
+    assert!(s.e_max_mm <= 1.4, "e_max {}", s.e_max_mm);
+    assert!(s.e_final_mm <= 0.05, "e_final {}", s.e_final_mm);
+    assert!(
+        s.min_clearance_mm > 1.0,
+        "min clearance {}",
+        s.min_clearance_mm
+    );
+    let hidden = run(
+        &scene(file, &[("gel.support_motion.hidden", "true")]),
+        &RunOptions::default(),
+        |_| {},
+    )
+    .unwrap();
+    let h = &hidden.summary;
+    println!(
+        "hidden: e_mean {:.3} e_max {:.3} e_final {:.4} mm, {:?}",
+        h.e_mean_mm, h.e_max_mm, h.e_final_mm, h.outcome
+    );
+    // The same controller blind to the motion: several times the error, the target missed.
+    assert!(h.e_mean_mm >= 0.5 && h.e_final_mm >= 1.0, "{h:?}");
+    assert_eq!(h.outcome, Outcome::MissedTarget);
+}
