@@ -249,6 +249,14 @@ fn csv_motion_errors_name_the_file_the_line_and_the_reason() {
     setup.world.move_support(1.0);
     assert_eq!(setup.world.support_offset, Vector3::new(0.0, 2.0, 0.0));
     assert_eq!(r.reports.len(), 30);
+    // The example scene's trace: its first cycle peaks at 2 s, 5 mm along x and 0.6 mm along z.
+    let trace = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../scenes/tissue/breathing_trace_complex.toml"
+    );
+    let mut setup = Setup::build(&scene(trace, &[])).unwrap();
+    setup.world.move_support(2.0);
+    assert!((setup.world.support_offset - Vector3::new(5.0, 0.0, 0.6)).norm() < 1e-12);
     // Both `breathing` and `csv`, or neither: refused by the scene's validation, naming the field.
     let both = Scene::builtin("simple").unwrap().with_overrides(&[
         ("gel.support_motion.breathing".into(), BREATHING_X.into()),
