@@ -449,6 +449,14 @@ impl Simulation {
         let setup = py
             .detach(|| Setup::build(&scene))
             .map_err(|e| SetupError::new_err(chain(&e)))?;
+        if setup.model.is_some() {
+            // A hidden support motion steps two worlds (the controller's model and the moving
+            // world); a Simulation steps one.
+            return Err(SetupError::new_err(
+                "gel.support_motion.hidden: a Simulation steps one world; run a motion hidden \
+                 from the model with needle.run",
+            ));
+        }
         let core = InProcess::<ROWS>::new(setup.robot, setup.inverse);
         let pipeline = Pipeline::new(&setup.world);
         Ok(Self {

@@ -391,7 +391,7 @@ pub fn run_setup_until(
         (ControllerKind::Inverse, Some(model)) => Some(HiddenMotion {
             pipeline: Pipeline::new(&model),
             model,
-            replay: OpenLoop::new(robot.clone(), inverse, Vec::new()),
+            replay: OpenLoop::new(robot, inverse, Vec::new()),
         }),
         _ => None,
     };
