@@ -97,6 +97,94 @@ fn a_gel_whose_support_moves_rigidly_moves_rigidly() {
     }
 }
 
+/// The compliance stays consistent with the free motion under a moved support: on a gel whose
+/// support moved by 5 mm (and settled), the displacement `K⁻¹ f` the compliance predicts for a
+/// small load equals, to first order, the equilibrium the free motion reaches under that load
+/// (a finite difference of the nonlinear equilibrium), and equals the still gel's to round-off.
+#[test]
+fn compliance_under_a_moved_support_predicts_the_equilibrium_by_finite_differences() {
+    let mesh = box_mesh_with_divisions(
+        Vector3::new(260.0, -30.0, 0.0),
+        Vector3::new(340.0, 30.0, 60.0),
+        BoxDivisions {
+            nx: 6,
+            ny: 4,
+            nz: 4,
+        },
+    );
+    let bottom = mesh.nodes_on_plane(2, 0.0, 1e-9);
+    let top = (0..mesh.nodes.len())
+        .max_by(|&a, &b| {
+            let score = |i: usize| mesh.nodes[i].z - 1e-3 * (mesh.nodes[i].x - 300.0).abs();
+            score(a).total_cmp(&score(b))
+        })
+        .unwrap();
+    let params = GelParams {
+        elasticity: needle_host::fem::Elasticity {
+            young_modulus: 0.02,
+            poisson_ratio: 0.45,
+        },
+        ..GelParams::default()
+    };
+    let settle = |gel: &mut GelModel, f: &[f64]| {
+        for _ in 0..30 {
+            let dx = gel.free_motion(f).unwrap().to_vec();
+            gel.apply_displacement(&dx).unwrap();
+            if dx.iter().fold(0.0f64, |m, v| m.max(v.abs())) < 1e-14 {
+                break;
+            }
+        }
+    };
+    let mut predicted = Vec::new();
+    for d in [Vector3::zeros(), Vector3::new(5.0, 0.0, 0.0)] {
+        let mut gel = GelModel::try_new(mesh.clone(), &bottom, &params).unwrap();
+        gel.displace_support(&d);
+        let zero = vec![0.0; gel.dof_count()];
+        settle(&mut gel, &zero);
+        gel.refactor().unwrap();
+        let before = gel.positions().to_vec();
+        for eps in [1e-4, 1e-5] {
+            let mut f = vec![0.0; gel.dof_count()];
+            f[3 * top] = eps; // N along x on a top node
+            f[3 * top + 2] = -0.5 * eps;
+            let mut u = f.clone();
+            gel.solve(&mut u).unwrap();
+            let mut loaded = GelModel::try_new(mesh.clone(), &bottom, &params).unwrap();
+            loaded.displace_support(&d);
+            settle(&mut loaded, &zero);
+            settle(&mut loaded, &f);
+            let mut worst: f64 = 0.0;
+            let mut scale: f64 = 0.0;
+            for (i, (x, x0)) in loaded.positions().iter().zip(&before).enumerate() {
+                let ui = Vector3::new(u[3 * i], u[3 * i + 1], u[3 * i + 2]);
+                worst = worst.max((x - x0 - ui).norm());
+                scale = scale.max(ui.norm());
+            }
+            println!(
+                "support {:?}, load {eps:e} N: |K⁻¹f| {scale:.3e} mm, FD mismatch {worst:.3e} mm",
+                d.as_slice()
+            );
+            // Second order in the load: the mismatch falls ~100× for a 10× smaller load.
+            assert!(
+                worst < 1e-4 * scale,
+                "mismatch {worst:e} against {scale:e} mm"
+            );
+            if eps == 1e-5 {
+                predicted.push(u);
+            }
+        }
+    }
+    let diff = predicted[0]
+        .iter()
+        .zip(&predicted[1])
+        .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
+    let scale = predicted[0].iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    assert!(
+        diff < 1e-9 * scale,
+        "moved and still compliances differ by {diff:e} mm"
+    );
+}
+
 /// At t = 0 a breathing motion (phase 0) is no motion, and a run under a zero-amplitude motion
 /// is the run without motion, bit for bit.
 #[test]
