@@ -268,6 +268,9 @@ struct HiddenMotion {
 
 impl HiddenMotion {
     /// One step: the model's (through the controller), then the world's at the model's joints.
+    /// The world's report carries the controller's status flags (unreachable, clearance active,
+    /// shortened, …: what the run's watchers and counts read) besides its own solve's
+    /// convergence.
     fn step(
         &mut self,
         pipeline: &mut Pipeline,
@@ -275,9 +278,12 @@ impl HiddenMotion {
         params: &crate::step::StepParams,
         controller: &mut dyn Transport<ROWS>,
     ) -> Result<StepReport, crate::error::SimError> {
+        use needle_core::payload::StatusFlags;
         let m = self.pipeline.step(&mut self.model, params, controller)?;
         self.replay.joints.push(m.q);
-        pipeline.step(world, params, &mut self.replay)
+        let mut r = pipeline.step(world, params, &mut self.replay)?;
+        r.solver.flags |= m.solver.flags & !StatusFlags::NOT_CONVERGED;
+        Ok(r)
     }
 }
 
