@@ -368,7 +368,7 @@ fn csv_motion_errors_name_the_file_the_line_and_the_reason() {
 /// ≤ 1.0 mm) and hidden from the model. Bounds: the figures measured when this was written
 /// (modelled 0.118 / 1.255 / 0.006 mm; hidden 0.614 / 1.707 / 1.207 mm) with a small margin.
 #[test]
-#[ignore = "two complex insertions, about 30 s in release"]
+#[ignore = "two complex insertions, about 40 s in release"]
 fn breathing_complex_tracks_the_moving_path_when_the_motion_is_modelled() {
     let file = concat!(
         env!("CARGO_MANIFEST_DIR"),
