@@ -54,7 +54,7 @@ fn intro(md: &mut String, s: &ReportSummary) {
          run), medians and 99th percentiles over the run's steps, and the mean; CPU per step is \
          the process's CPU time summed over its threads (the background factorisation \
          included) per step; FM free motion, CD proximity, \
-         CC compliance, SC the core's constraint solves (the inverse step: 7–8 Gauss-Seidel \
+         CC compliance, SC the core's constraint solves (the inverse step: 8–13 Gauss-Seidel \
          solves), corr corrective motion. Errors are `|tip − target|` in the deformed gel over \
          the steps with the tip inside the gel. Clearance: the smallest distance from the \
          needle to any obstacle surface over the run (**hit** when negative).\n"
