@@ -183,13 +183,17 @@ impl<const M: usize> BaseElimination<M> {
         frame: &ComplianceFrame<M, N>,
         delta_b: &[f64; 6],
     ) {
-        for i in 0..self.n {
-            let mut d = frame.delta_free[BASE_ROWS + i];
-            for k in 0..6 {
-                d -= self.s[i][k] * delta_b[k];
-            }
-            self.delta[i] = d;
-        }
+        reduce_into(&self.s[..self.n], frame, delta_b, &mut self.delta);
+    }
+
+    /// [`Self::reduce_delta`] into `out` (rows `0..n`) instead of [`Self::delta`].
+    pub fn reduce_delta_into<const N: usize>(
+        &self,
+        frame: &ComplianceFrame<M, N>,
+        delta_b: &[f64; 6],
+        out: &mut [f64; M],
+    ) {
+        reduce_into(&self.s[..self.n], frame, delta_b, out);
     }
 
     /// The full `λ` from the reduced `lambda_o` (rows `0..n`): `λ_b = W_bb⁻¹ (δ_b − W_bo λ_o)`,
@@ -218,6 +222,22 @@ impl<const M: usize> BaseElimination<M> {
             full[k] = v;
         }
         full[BASE_ROWS..BASE_ROWS + self.n].copy_from_slice(&lambda_o[..self.n]);
+    }
+}
+
+/// `out_i = δ_o,i − S_i δ_b` for the rows of `s`.
+fn reduce_into<const M: usize, const N: usize>(
+    s: &[[f64; 6]],
+    frame: &ComplianceFrame<M, N>,
+    delta_b: &[f64; 6],
+    out: &mut [f64; M],
+) {
+    for (i, si) in s.iter().enumerate() {
+        let mut d = frame.delta_free[BASE_ROWS + i];
+        for k in 0..6 {
+            d -= si[k] * delta_b[k];
+        }
+        out[i] = d;
     }
 }
 

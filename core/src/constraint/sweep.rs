@@ -3,7 +3,8 @@
 
 use super::project::Sym2;
 use super::{
-    BlockGs, GsParams, KIND_BILATERAL, KIND_CONTACT, KIND_SLIDING, KIND_UNILATERAL, SolveReport,
+    Block, BlockGs, GsParams, KIND_BILATERAL, KIND_CONTACT, KIND_SLIDING, KIND_UNILATERAL,
+    SolveReport,
 };
 use crate::math::{axpy, axpy3, dot, max_abs};
 
@@ -39,6 +40,21 @@ impl<const M: usize> BlockGs<M> {
         lambda: &mut [f64; M],
         params: &GsParams,
     ) -> SolveReport {
+        self.solve_from(w, delta, lambda, None, params)
+    }
+
+    /// [`Self::solve`], given the product `W λ` of the starting `lambda` ([`Self::product`]) when
+    /// several solves start from the same `λ`: the initial residual is then `product − δ`, the
+    /// same numbers [`Self::solve`] computes, without its `m²` pass. The product is ignored
+    /// when `lambda` has a non-finite entry (zeroed first, so the product would not match).
+    pub(crate) fn solve_from(
+        &mut self,
+        w: &[[f64; M]; M],
+        delta: &[f64; M],
+        lambda: &mut [f64; M],
+        product: Option<&[f64; M]>,
+        params: &GsParams,
+    ) -> SolveReport {
         let m = self.m;
         if m == 0 {
             return SolveReport {
@@ -48,13 +64,22 @@ impl<const M: usize> BlockGs<M> {
         }
         // Initial residual and the problem scale.
         let mut scale = max_abs(&delta[..m]);
+        let mut cleaned = false;
         for i in 0..m {
             if !lambda[i].is_finite() {
                 lambda[i] = 0.0;
+                cleaned = true;
             }
             scale = scale.max(libm::fabs(self.diag[i] * lambda[i]));
         }
-        self.residual_dispatch(w, delta, lambda);
+        match product {
+            Some(p) if !cleaned => {
+                for i in 0..m {
+                    self.w[i] = p[i] - delta[i];
+                }
+            }
+            _ => self.residual_dispatch(w, delta, lambda),
+        }
         if !(scale > 0.0) {
             lambda[..m].fill(0.0);
             return SolveReport {
@@ -90,29 +115,19 @@ impl<const M: usize> BlockGs<M> {
         report
     }
 
-    /// `w = W λ − δ` over the used rows, with the AVX2 copy when available.
+    /// `w = W λ − δ` over the used rows.
     fn residual_dispatch(&mut self, w: &[[f64; M]; M], delta: &[f64; M], lambda: &[f64; M]) {
-        #[cfg(target_arch = "x86_64")]
-        if crate::math::use_avx2() {
-            // SAFETY: AVX2 support was checked at run time.
-            unsafe { self.residual_avx2(w, delta, lambda) };
-            return;
-        }
-        self.residual_inline(w, delta, lambda);
-    }
-
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2")]
-    unsafe fn residual_avx2(&mut self, w: &[[f64; M]; M], delta: &[f64; M], lambda: &[f64; M]) {
-        self.residual_inline(w, delta, lambda);
-    }
-
-    #[inline(always)]
-    fn residual_inline(&mut self, w: &[[f64; M]; M], delta: &[f64; M], lambda: &[f64; M]) {
         let m = self.m;
+        product_rows(w, lambda, m, &mut self.w);
         for i in 0..m {
-            self.w[i] = dot(&w[i][..m], &lambda[..m]) - delta[i];
+            self.w[i] -= delta[i];
         }
+    }
+
+    /// `out = W λ` over the used rows (rows `m..` untouched): the product that solves started
+    /// from `λ` begin with ([`Self::solve_from`]).
+    pub(crate) fn product(&self, w: &[[f64; M]; M], lambda: &[f64; M], out: &mut [f64; M]) {
+        product_rows(w, lambda, self.m, out);
     }
 
     /// One sweep, with the AVX-512 or the AVX2 copy of the loops when the CPU has it (the same
@@ -158,21 +173,273 @@ impl<const M: usize> BlockGs<M> {
         };
         for b in &self.blocks[..self.n_blocks] {
             let start = b.start as usize;
-            let f = self.factors[start..].as_flattened();
-            match b.kind {
-                KIND_BILATERAL => s.bilateral(start, b.len as usize, f, omega),
-                KIND_UNILATERAL => s.unilateral(start, f[0], omega),
-                KIND_CONTACT => s.contact(start, b.mu, f),
-                KIND_SLIDING => s.sliding(start, b.mu, b.r0, f, omega),
-                _ => {}
+            s.group(b, self.factors[start..].as_flattened(), omega);
+        }
+        finite_change(s.change)
+    }
+
+    /// `count ≤ K` solves that start from the same `lambda0`, each with its own `δ`
+    /// (`batch.delta[k]`, rows `0..m`), run in lock step: each sweep visits the groups once and
+    /// updates every unfinished solve at each, so the rows of `W` a group reads come from
+    /// memory once for all of them (from the cache for the others). Each solve does exactly the
+    /// operations of [`Self::solve_from`] (the same λ, sweep count and report) and stops at its
+    /// own convergence; `product = W lambda0` ([`Self::product`]). The results are in
+    /// `batch.lambda[k]`.
+    pub(crate) fn solve_batch<const K: usize>(
+        &mut self,
+        w: &[[f64; M]; M],
+        lambda0: &[f64; M],
+        product: &[f64; M],
+        batch: &mut GsBatch<M, K>,
+        count: usize,
+        params: &GsParams,
+    ) -> [SolveReport; K] {
+        let (m, count) = (self.m, count.min(K));
+        let mut reports = [SolveReport::default(); K];
+        if m == 0 {
+            for r in &mut reports[..count] {
+                r.converged = true;
+            }
+            return reports;
+        }
+        let mut start = [0.0; M];
+        let mut cleaned = false;
+        for i in 0..m {
+            start[i] = if lambda0[i].is_finite() {
+                lambda0[i]
+            } else {
+                cleaned = true;
+                0.0
+            };
+        }
+        let mut own = [0.0; M];
+        let product = if cleaned {
+            self.product(w, &start, &mut own);
+            &own
+        } else {
+            product
+        };
+        let mut scale = [0.0; K];
+        let mut active = [false; K];
+        for k in 0..count {
+            let (delta, lambda, res) = (&batch.delta[k], &mut batch.lambda[k], &mut batch.res[k]);
+            let mut sc = max_abs(&delta[..m]);
+            for i in 0..m {
+                lambda[i] = start[i];
+                sc = sc.max(libm::fabs(self.diag[i] * start[i]));
+                res[i] = product[i] - delta[i];
+            }
+            if sc > 0.0 {
+                active[k] = true;
+            } else {
+                lambda[..m].fill(0.0);
+                reports[k].converged = true;
+            }
+            scale[k] = sc;
+        }
+        let tol = if params.tolerance.is_finite() {
+            params.tolerance.max(0.0)
+        } else {
+            0.0
+        };
+        let mut iterations = 0;
+        while iterations < params.max_iterations && active.iter().any(|a| *a) {
+            let omega = if params.relaxation.is_finite() {
+                params.relaxation.clamp(0.1, 1.9)
+            } else {
+                1.0
+            };
+            let change = self.sweep_batch_dispatch(w, batch, &active, omega);
+            iterations += 1;
+            for k in 0..count {
+                if active[k] {
+                    let r = &mut reports[k];
+                    r.iterations = iterations;
+                    r.residual = change[k] / scale[k];
+                    if !(r.residual > tol) {
+                        r.converged = r.residual <= tol;
+                        active[k] = false;
+                    }
+                }
             }
         }
-        // NaN-safe: a NaN change must not read as converged.
-        if s.change.is_nan() {
-            f64::INFINITY
-        } else {
-            s.change
+        for k in 0..count {
+            if scale[k] > 0.0 {
+                self.w[..m].copy_from_slice(&batch.res[k][..m]);
+                if params.polish
+                    && !self.frictional
+                    && self.polish(w, &batch.delta[k], &mut batch.lambda[k], scale[k])
+                {
+                    let r = &mut reports[k];
+                    r.converged = true;
+                    r.polished = true;
+                    r.residual = 0.0;
+                }
+            }
         }
+        reports
+    }
+
+    /// One lock-step sweep of a batch ([`Self::solve_batch`]), with the AVX-512 or the AVX2
+    /// copy of the loops when the CPU has it.
+    fn sweep_batch_dispatch<const K: usize>(
+        &self,
+        w: &[[f64; M]; M],
+        batch: &mut GsBatch<M, K>,
+        active: &[bool; K],
+        omega: f64,
+    ) -> [f64; K] {
+        #[cfg(target_arch = "x86_64")]
+        if crate::math::use_avx512() {
+            // SAFETY: AVX-512F support was checked at run time.
+            return unsafe { self.sweep_batch_avx512(w, batch, active, omega) };
+        }
+        #[cfg(target_arch = "x86_64")]
+        if crate::math::use_avx2() {
+            // SAFETY: AVX2 support was checked at run time.
+            return unsafe { self.sweep_batch_avx2(w, batch, active, omega) };
+        }
+        self.sweep_batch(w, batch, active, omega, 4)
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn sweep_batch_avx2<const K: usize>(
+        &self,
+        w: &[[f64; M]; M],
+        batch: &mut GsBatch<M, K>,
+        active: &[bool; K],
+        omega: f64,
+    ) -> [f64; K] {
+        self.sweep_batch(w, batch, active, omega, 4)
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f")]
+    unsafe fn sweep_batch_avx512<const K: usize>(
+        &self,
+        w: &[[f64; M]; M],
+        batch: &mut GsBatch<M, K>,
+        active: &[bool; K],
+        omega: f64,
+    ) -> [f64; K] {
+        self.sweep_batch(w, batch, active, omega, 8)
+    }
+
+    /// [`Self::sweep`] for every active solve of a batch, group by group: each solve sees the
+    /// same sequence of group updates as alone.
+    #[inline(always)]
+    fn sweep_batch<const K: usize>(
+        &self,
+        w: &[[f64; M]; M],
+        batch: &mut GsBatch<M, K>,
+        active: &[bool; K],
+        omega: f64,
+        lanes: usize,
+    ) -> [f64; K] {
+        let m = padded(self.m, lanes, M);
+        let mut change = [0.0f64; K];
+        let GsBatch { lambda, res, .. } = batch;
+        for b in &self.blocks[..self.n_blocks] {
+            let f = self.factors[b.start as usize..].as_flattened();
+            for (k, ((lambda, res), change)) in lambda
+                .iter_mut()
+                .zip(res.iter_mut())
+                .zip(change.iter_mut())
+                .enumerate()
+            {
+                if !active[k] {
+                    continue;
+                }
+                let mut s = Sweep {
+                    w,
+                    res,
+                    lambda,
+                    diag: &self.diag,
+                    m,
+                    change: *change,
+                };
+                s.group(b, f, omega);
+                *change = s.change;
+            }
+        }
+        change.map(finite_change)
+    }
+}
+
+/// A sweep's largest change, NaN-safe: a NaN change must not read as converged.
+#[inline(always)]
+fn finite_change(change: f64) -> f64 {
+    if change.is_nan() {
+        f64::INFINITY
+    } else {
+        change
+    }
+}
+
+/// The iterates of `K` solves run together by [`BlockGs::solve_batch`]: each one's `δ` (filled
+/// by the caller), its λ and its residual. `3 K M` values: keep it inside an owning struct.
+#[derive(Clone, Debug)]
+pub(crate) struct GsBatch<const M: usize, const K: usize> {
+    /// `δ` of each solve (rows `0..m`).
+    pub(crate) delta: [[f64; M]; K],
+    /// λ of each solve: the result.
+    pub(crate) lambda: [[f64; M]; K],
+    /// The residual `w = W λ − δ` of each solve.
+    res: [[f64; M]; K],
+}
+
+crate::zeroed::impl_zeroable!(GsBatch<const M, const K> { delta, lambda, res });
+
+impl<const M: usize, const K: usize> GsBatch<M, K> {
+    /// Zero iterates.
+    pub(crate) const fn new() -> Self {
+        Self {
+            delta: [[0.0; M]; K],
+            lambda: [[0.0; M]; K],
+            res: [[0.0; M]; K],
+        }
+    }
+}
+
+/// `out[i] = W_i · λ` for rows `0..m`, with the AVX2 copy when the CPU has it (the same
+/// operations: the same result).
+fn product_rows<const M: usize>(
+    w: &[[f64; M]; M],
+    lambda: &[f64; M],
+    m: usize,
+    out: &mut [f64; M],
+) {
+    #[cfg(target_arch = "x86_64")]
+    if crate::math::use_avx2() {
+        // SAFETY: AVX2 support was checked at run time.
+        unsafe { product_avx2(w, lambda, m, out) };
+        return;
+    }
+    product_inline(w, lambda, m, out);
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn product_avx2<const M: usize>(
+    w: &[[f64; M]; M],
+    lambda: &[f64; M],
+    m: usize,
+    out: &mut [f64; M],
+) {
+    product_inline(w, lambda, m, out);
+}
+
+#[inline(always)]
+fn product_inline<const M: usize>(
+    w: &[[f64; M]; M],
+    lambda: &[f64; M],
+    m: usize,
+    out: &mut [f64; M],
+) {
+    let m = m.min(M);
+    for i in 0..m {
+        out[i] = dot(&w[i][..m], &lambda[..m]);
     }
 }
 
@@ -200,6 +467,19 @@ struct Sweep<'a, const M: usize> {
 }
 
 impl<const M: usize> Sweep<'_, M> {
+    /// The update of group `b` (packed factors `f`).
+    #[inline(always)]
+    fn group(&mut self, b: &Block, f: &[f64], omega: f64) {
+        let start = b.start as usize;
+        match b.kind {
+            KIND_BILATERAL => self.bilateral(start, b.len as usize, f, omega),
+            KIND_UNILATERAL => self.unilateral(start, f[0], omega),
+            KIND_CONTACT => self.contact(start, b.mu, f),
+            KIND_SLIDING => self.sliding(start, b.mu, b.r0, f, omega),
+            _ => {}
+        }
+    }
+
     /// Records the change `d` of row `i`.
     #[inline(always)]
     fn record(&mut self, i: usize, d: f64) {

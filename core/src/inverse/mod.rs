@@ -61,7 +61,7 @@ pub use qp_step::QP_MAX_JOINTS;
 pub use solves::base_violation;
 pub use step::{MAX_BACKTRACKS, SUFFICIENT_DECREASE};
 
-use crate::constraint::{ActiveSet, BlockGs};
+use crate::constraint::{ActiveSet, BlockGs, GsBatch};
 use crate::kinematics::Robot;
 use crate::reduce::BaseElimination;
 use solves::Target;
@@ -97,6 +97,12 @@ pub struct Controller<const M: usize, const N: usize = 6> {
     lambda: Lambdas<M>,
     /// Iterate of a reduced solve (rows `6..m` of the full λ, shifted to `0..n`).
     lr: [f64; M],
+    /// The reduced solves of the Jacobian's columns, run together.
+    columns: GsBatch<M, N>,
+    /// `W' λ_q` (reduced rows), the start of every reduced solve that starts from `λ_q`.
+    start_product: [f64; M],
+    /// Whether `start_product` belongs to this step's `W'` and `λ_q`.
+    start_product_ok: bool,
 }
 
 /// The λ buffers of a step [N or N·mm].
@@ -149,6 +155,9 @@ crate::zeroed::impl_zeroable!(Controller<const M, const N> {
     delta_base,
     lambda,
     lr,
+    columns,
+    start_product,
+    start_product_ok,
 });
 
 impl<const M: usize, const N: usize> Controller<M, N> {
@@ -173,6 +182,9 @@ impl<const M: usize, const N: usize> Controller<M, N> {
             delta_base: [0.0; 6],
             lambda: Lambdas::new(),
             lr: [0.0; M],
+            columns: GsBatch::new(),
+            start_product: [0.0; M],
+            start_product_ok: false,
         }
     }
 

@@ -81,9 +81,12 @@ impl<const M: usize, const N: usize> Controller<M, N> {
         debug_assert!(!(target == Target::Base && start == Start::Predicted));
         let b = self.robot.tool_pose(q);
         let d = base_violation(&b, &frame.p_free, &frame.r_free);
+        // Without a valid active set the prediction is `λ_q` itself.
+        let from_base = target == Target::Work && start == Start::Predicted && !self.set_valid;
         if target == Target::Base {
             self.delta_base = d;
             self.set_valid = false;
+            self.start_product_ok = false;
         }
         if start == Start::Predicted {
             self.predict(frame, &d);
@@ -93,7 +96,7 @@ impl<const M: usize, const N: usize> Controller<M, N> {
             ..self.params.gs
         };
         let rep = if self.params.eliminate_base {
-            self.solve_reduced(frame, &d, target, &gs)
+            self.solve_reduced(frame, &d, target, &gs, from_base)
         } else {
             self.delta[..6].copy_from_slice(&d);
             match target {
@@ -149,13 +152,15 @@ impl<const M: usize, const N: usize> Controller<M, N> {
     }
 
     /// A solve of the reduced problem for the base violation `d`, started from the target's
-    /// rows `6..m`; the full λ (base rows recovered) is written back into the target.
+    /// rows `6..m` (`from_base`: they are `λ_q`'s, so the solve starts from `W' λ_q`); the full λ
+    /// (base rows recovered) is written back into the target.
     fn solve_reduced(
         &mut self,
         frame: &ComplianceFrame<M, N>,
         d: &[f64; 6],
         target: Target,
         gs: &GsParams,
+        from_base: bool,
     ) -> SolveReport {
         self.red.reduce_delta(frame, d);
         let n = self.red.rows();
@@ -164,15 +169,35 @@ impl<const M: usize, const N: usize> Controller<M, N> {
             max_iterations: gs.max_iterations.min(POLISH_AFTER),
             ..*gs
         };
-        let mut rep = if n > 0 {
+        let rep = if n > 0 {
+            let product = if from_base {
+                self.update_start_product();
+                Some(&self.start_product)
+            } else {
+                None
+            };
             self.gs
-                .solve(&self.red.w, &self.red.delta, &mut self.lr, &first)
+                .solve_from(&self.red.w, &self.red.delta, &mut self.lr, product, &first)
         } else {
             SolveReport {
                 converged: true,
                 ..SolveReport::default()
             }
         };
+        self.finish_reduced(frame, d, target, gs, rep)
+    }
+
+    /// The end of a reduced solve whose first `POLISH_AFTER` sweeps left `self.lr` (and
+    /// `self.red.delta` its `δ'`) with report `rep`: when it has not converged, polished on its
+    /// active set and confirmed (twice at most), then expanded into the target.
+    fn finish_reduced(
+        &mut self,
+        frame: &ComplianceFrame<M, N>,
+        d: &[f64; 6],
+        target: Target,
+        gs: &GsParams,
+        mut rep: SolveReport,
+    ) -> SolveReport {
         // Polish, then Gauss-Seidel for at most as many sweeps again; should that not converge
         // (the rounds ran out on statuses that cycle), polish once more from the new iterate,
         // then Gauss-Seidel for whatever the cap leaves.
@@ -200,6 +225,83 @@ impl<const M: usize, const N: usize> Controller<M, N> {
         }
         self.red.expand(frame, d, &self.lr, self.lambda.of(target));
         rep
+    }
+
+    /// `W' λ_q` into `start_product`, unless it is there already.
+    fn update_start_product(&mut self) {
+        if !self.start_product_ok {
+            let n = self.red.rows();
+            let mut lq = [0.0; M];
+            lq[..n].copy_from_slice(&self.lambda.base[6..6 + n]);
+            self.gs.product(&self.red.w, &lq, &mut self.start_product);
+            self.start_product_ok = true;
+        }
+    }
+
+    /// The solves of the Jacobian's columns at joints `qs[i]`, started from `λ_q`, to
+    /// `tolerance`, run together on the reduced problem ([`BlockGs::solve_batch`]: each one the
+    /// same operations and the same result as alone, the rows of `W'` read once a sweep for
+    /// all). Returns the tool poses, the base violations and the reports of the first
+    /// `POLISH_AFTER` sweeps, to be finished column by column by [`Self::finish_column`]; `None`
+    /// when the solves do not start from `λ_q` or the base rows are not eliminated (then each
+    /// column is its own solve).
+    #[allow(clippy::type_complexity)]
+    pub(super) fn solve_columns(
+        &mut self,
+        frame: &ComplianceFrame<M, N>,
+        qs: &[[f64; N]; N],
+        tolerance: f64,
+    ) -> Option<([Pose; N], [[f64; 6]; N], [SolveReport; N])> {
+        let n = self.red.rows();
+        if !self.params.eliminate_base || self.set_valid || n == 0 {
+            return None;
+        }
+        let poses: [Pose; N] = core::array::from_fn(|i| self.robot.tool_pose(&qs[i]));
+        let ds: [[f64; 6]; N] =
+            core::array::from_fn(|i| base_violation(&poses[i], &frame.p_free, &frame.r_free));
+        for (d, delta) in ds.iter().zip(self.columns.delta.iter_mut()) {
+            self.red.reduce_delta_into(frame, d, delta);
+        }
+        self.update_start_product();
+        let mut lq = [0.0; M];
+        lq[..n].copy_from_slice(&self.lambda.base[6..6 + n]);
+        let first = GsParams {
+            tolerance,
+            max_iterations: self.params.gs.max_iterations.min(POLISH_AFTER),
+            ..self.params.gs
+        };
+        let reports = self.gs.solve_batch(
+            &self.red.w,
+            &lq,
+            &self.start_product,
+            &mut self.columns,
+            N,
+            &first,
+        );
+        Some((poses, ds, reports))
+    }
+
+    /// Column `i` of [`Self::solve_columns`] (base violation `d`, report `rep`) finished as
+    /// [`Self::solve`] would finish it, into `lambda.work`.
+    pub(super) fn finish_column(
+        &mut self,
+        frame: &ComplianceFrame<M, N>,
+        i: usize,
+        d: &[f64; 6],
+        rep: SolveReport,
+        tolerance: f64,
+    ) -> SolveReport {
+        let (m, n) = (frame.rows(), self.red.rows());
+        self.lambda.work[..m].copy_from_slice(&self.lambda.base[..m]);
+        self.lr[..n].copy_from_slice(&self.columns.lambda[i][..n]);
+        if !rep.converged {
+            self.red.reduce_delta(frame, d);
+        }
+        let gs = GsParams {
+            tolerance,
+            ..self.params.gs
+        };
+        self.finish_reduced(frame, d, Target::Work, &gs, rep)
     }
 
     /// Slow convergence of a reduced solve (sliding points coupled through the stiff needle:
@@ -276,6 +378,7 @@ impl<const M: usize, const N: usize> Controller<M, N> {
         &mut self,
         frame: &ComplianceFrame<M, N>,
     ) -> Result<(), StepError> {
+        self.start_product_ok = false;
         self.gs.prepare_frame(frame)?;
         if !self.params.eliminate_base {
             return Ok(());

@@ -199,14 +199,26 @@ impl<const M: usize, const N: usize> Controller<M, N> {
         let linear = linearize && self.factor_linearized(frame);
         let tolerance = p.jacobian_tolerance.max(p.gs.tolerance);
         let mut jac = Jacobian::<N>::zeros();
-        for i in 0..N {
+        let qs: [[f64; N]; N] = core::array::from_fn(|i| {
             let mut qi = frame.q;
             qi[i] += p.joint_step;
+            qi
+        });
+        let columns = if linear {
+            None
+        } else {
+            self.solve_columns(frame, &qs, tolerance)
+        };
+        for (i, qi) in qs.iter().enumerate() {
             let bi = if linear {
                 report.solves += 1;
-                self.predict_at(frame, &qi)
+                self.predict_at(frame, qi)
+            } else if let Some((poses, ds, reps)) = &columns {
+                let r = self.finish_column(frame, i, &ds[i], reps[i], tolerance);
+                count_solve(report, &r);
+                poses[i]
             } else {
-                let (bi, r) = self.solve(frame, &qi, Target::Work, Start::Predicted, tolerance);
+                let (bi, r) = self.solve(frame, qi, Target::Work, Start::Predicted, tolerance);
                 count_solve(report, &r);
                 bi
             };
