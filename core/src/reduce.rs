@@ -159,15 +159,20 @@ impl<const M: usize> BaseElimination<M> {
                 &b[4][..=i],
                 &b[5][..=i],
             );
-            for j in 0..=i {
-                let mut v = src[j];
-                v -= si[0] * b0[j];
-                v -= si[1] * b1[j];
-                v -= si[2] * b2[j];
-                v -= si[3] * b3[j];
-                v -= si[4] * b4[j];
-                v -= si[5] * b5[j];
-                row[j] = v;
+            let cols = row
+                .iter_mut()
+                .zip(src)
+                .zip(b0.iter().zip(b1).zip(b2))
+                .zip(b3.iter().zip(b4).zip(b5));
+            for (((r, x), ((y0, y1), y2)), ((y3, y4), y5)) in cols {
+                let mut v = *x;
+                v -= si[0] * y0;
+                v -= si[1] * y1;
+                v -= si[2] * y2;
+                v -= si[3] * y3;
+                v -= si[4] * y4;
+                v -= si[5] * y5;
+                *r = v;
             }
         }
         for i in 0..n {
