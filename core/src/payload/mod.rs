@@ -221,6 +221,33 @@ mod tests {
     use super::*;
     use core::mem::{align_of, offset_of, size_of};
 
+    /// The symmetry check of `W`: round-off within `1e-8 √(W_ii W_jj)` passes, and a matrix
+    /// with two asymmetric pairs is rejected naming the first one in row order (row `i`, then
+    /// column `j < i`).
+    #[test]
+    fn compliance_symmetry_names_the_first_asymmetric_entry() {
+        let mut w = [[0.0f64; 8]; 8];
+        for (i, row) in w.iter_mut().enumerate() {
+            for (j, x) in row.iter_mut().enumerate() {
+                *x = if i == j {
+                    4.0 + i as f64
+                } else {
+                    0.1 * (i + j) as f64
+                };
+            }
+        }
+        w[5][2] += 1e-12;
+        assert_eq!(validate_compliance(&w, 8), Ok(()));
+        w[6][1] += 1e-3;
+        w[4][3] -= 1e-3;
+        assert_eq!(
+            validate_compliance(&w, 8),
+            Err(ValidationError::NotSymmetric { row: 4, col: 3 })
+        );
+        // Outside the used block the matrix is not looked at.
+        assert_eq!(validate_compliance(&w, 4), Ok(()));
+    }
+
     /// The `#[repr(C)]` layout of the v2 payloads (type names `needle.ComplianceFrame.v2`,
     /// `needle.Command.v2`): field offsets and sizes at `M = 192` as measured on the layout
     /// before the payload types became generic over the joint count (v1), with the obstacle

@@ -210,6 +210,18 @@ pub fn validate_compliance<const M: usize>(
     for i in 0..m {
         root[i] = libm::sqrt(w[i][i]);
     }
+    // The test of every pair without a branch (the common case: it passes), then, only when it
+    // fails, the same test again stopping at the first offending entry (the error names it).
+    let mut asymmetric = false;
+    for i in 0..m {
+        let tol_i = 1e-8 * root[i];
+        for (j, (wij, rj)) in w[i][..i].iter().zip(&root[..i]).enumerate() {
+            asymmetric |= libm::fabs(wij - w[j][i]) > tol_i * rj;
+        }
+    }
+    if !asymmetric {
+        return Ok(());
+    }
     for i in 0..m {
         let tol_i = 1e-8 * root[i];
         for j in 0..i {
