@@ -230,10 +230,10 @@ impl ConstraintSet {
     /// # Panics
     /// If the rows exceed the frame's capacity or a point's columns were not computed (both are
     /// checked by the caller, the world, before).
-    pub fn fill_frame<const M: usize>(
+    pub fn fill_frame<const M: usize, const N: usize>(
         &self,
         observations: &[Observation; NOBS / 3],
-        frame: &mut ComplianceFrame<M>,
+        frame: &mut ComplianceFrame<M, N>,
     ) {
         let m = self.rows();
         assert!(m <= M, "{m} rows exceed the frame capacity {M}");
@@ -311,10 +311,10 @@ impl ConstraintSet {
     /// `clearance_c = nᵀ (C_p − C_c)`. (Linearised at the free motion instead, the rows fail
     /// where the unconstrained needle's free motion carries `p` through the obstacle: `n` is
     /// then meaningless, and the prediction was 4 mm off on `obstacles_tight`.)
-    pub fn fill_clearances<const M: usize>(
+    pub fn fill_clearances<const M: usize, const N: usize>(
         &self,
         clearances: &[ClearanceObservation],
-        frame: &mut ComplianceFrame<M>,
+        frame: &mut ComplianceFrame<M, N>,
     ) {
         let m = self.rows().min(M);
         let starts = self.starts();

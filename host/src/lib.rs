@@ -12,6 +12,7 @@ pub mod cpu;
 pub mod error;
 pub mod fem;
 pub mod free_motion;
+pub mod joints;
 pub mod linalg;
 pub mod logs;
 pub mod mesh;

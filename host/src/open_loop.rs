@@ -9,7 +9,7 @@ use crate::step::ROWS;
 use needle_bridge::{ExchangeReport, Transport, TransportError};
 use needle_core::inverse::{Controller, InverseParams, StepError};
 use needle_core::kinematics::Robot;
-use needle_core::payload::{Command, ComplianceFrame, JOINTS};
+use needle_core::payload::{Command, ComplianceFrame};
 use std::time::Instant;
 
 /// Answers frame `k` (its `sequence`) with the constraint solve at `joints[k]`.
@@ -33,15 +33,15 @@ use std::time::Instant;
 /// // No joints for a third frame: the step fails, it does not guess.
 /// assert!(pipeline.step(&mut world, &params, &mut hold).is_err());
 /// ```
-pub struct OpenLoop {
-    controller: Box<Controller<ROWS>>,
+pub struct OpenLoop<const N: usize = 6> {
+    controller: Box<Controller<ROWS, N>>,
     /// The joints of each frame, by sequence [rad].
-    pub joints: Vec<[f64; JOINTS]>,
+    pub joints: Vec<[f64; N]>,
 }
 
-impl OpenLoop {
+impl<const N: usize> OpenLoop<N> {
     /// An open loop for `chain` with the solver tuning of `params`, replaying `joints`.
-    pub fn new(chain: Robot<JOINTS>, params: InverseParams, joints: Vec<[f64; JOINTS]>) -> Self {
+    pub fn new(chain: Robot<N>, params: InverseParams, joints: Vec<[f64; N]>) -> Self {
         Self {
             controller: Controller::new_boxed(chain, params),
             joints,
@@ -49,14 +49,14 @@ impl OpenLoop {
     }
 }
 
-impl Transport<ROWS> for OpenLoop {
+impl<const N: usize> Transport<ROWS, N> for OpenLoop<N> {
     /// # Errors
     /// [`TransportError::Core`]: no joints for the frame's sequence
     /// ([`StepError::InvalidParameter`] `joints`), or the core's rejection of the frame.
     fn exchange(
         &mut self,
-        frame: &ComplianceFrame<ROWS>,
-        cmd: &mut Command<ROWS>,
+        frame: &ComplianceFrame<ROWS, N>,
+        cmd: &mut Command<ROWS, N>,
     ) -> Result<ExchangeReport, TransportError> {
         let q = usize::try_from(frame.sequence)
             .ok()

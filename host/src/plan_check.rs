@@ -21,7 +21,7 @@ fn refuse(field: &str, reason: String) -> SetupError {
 ///
 /// # Errors
 /// [`SetupError::Plan`] naming the first problem.
-pub fn check(scene: &Scene, world: &World) -> Result<(), SetupError> {
+pub fn check<const N: usize>(scene: &Scene, world: &World<N>) -> Result<(), SetupError> {
     fixed_bottom(scene, world)?;
     inside_gel(world)?;
     obstacles(scene, world)?;
@@ -29,7 +29,7 @@ pub fn check(scene: &Scene, world: &World) -> Result<(), SetupError> {
 }
 
 /// No vertex of the path at or below the gel's fixed bottom (`gel.fixed.below_z`).
-fn fixed_bottom(scene: &Scene, world: &World) -> Result<(), SetupError> {
+fn fixed_bottom<const N: usize>(scene: &Scene, world: &World<N>) -> Result<(), SetupError> {
     let Some(z) = scene.gel.fixed.below_z else {
         return Ok(());
     };
@@ -47,7 +47,7 @@ fn fixed_bottom(scene: &Scene, world: &World) -> Result<(), SetupError> {
 }
 
 /// Every vertex of the path lies in the rest gel.
-fn inside_gel(world: &World) -> Result<(), SetupError> {
+fn inside_gel<const N: usize>(world: &World<N>) -> Result<(), SetupError> {
     let path = &world.path;
     match path.points.iter().position(|p| !world.in_rest_gel(p)) {
         Some(i) => Err(refuse(
@@ -76,7 +76,7 @@ fn distance_to_polyline(points: &[Vector3<f64>], c: &Vector3<f64>) -> f64 {
 
 /// No obstacle on the path: the path's centre line must pass outside every sphere (the
 /// controller keeps the needle on the path, so a path through an obstacle plans a hit).
-fn obstacles(scene: &Scene, world: &World) -> Result<(), SetupError> {
+fn obstacles<const N: usize>(scene: &Scene, world: &World<N>) -> Result<(), SetupError> {
     for (k, o) in scene.obstacles.iter().enumerate() {
         let c = Vector3::from(o.center);
         let d = distance_to_polyline(&world.path.points, &c);
@@ -100,7 +100,7 @@ fn obstacles(scene: &Scene, world: &World) -> Result<(), SetupError> {
 
 /// The needle is longer than the deepest planned insertion (else its base, the flange, would
 /// enter the gel).
-fn needle_length(scene: &Scene, world: &World) -> Result<(), SetupError> {
+fn needle_length<const N: usize>(scene: &Scene, world: &World<N>) -> Result<(), SetupError> {
     let path = &world.path;
     let reach = match scene.insertion.steps {
         Some(n) => (scene.insertion.advance_per_step * n as f64 - path.approach).min(path.length()),

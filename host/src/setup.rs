@@ -14,6 +14,7 @@ use crate::fem::tetra::Kinematics;
 use crate::free_motion::{
     GelModel, GelParams, NeedleModel, NeedleParams, PcgParams, RegionMaterial,
 };
+use crate::joints::{WithJoints, with_joints};
 use crate::mesh::{TetMesh, box_mesh, read_mesh};
 use crate::scene::{GelSolveSpec, InsertionMode, Scene};
 use crate::step::{Insertion, Interaction, StepParams, TargetMotion};
@@ -23,7 +24,6 @@ use nalgebra::{Isometry3, Rotation3, Translation3, UnitQuaternion, Vector3};
 use needle_core::ik::{IkParams, solve_ik};
 use needle_core::inverse::InverseParams;
 use needle_core::kinematics::{Kinematics as _, Robot};
-use needle_core::payload::JOINTS;
 
 /// What a run of a scene plans, besides the simulation.
 #[derive(Clone, Debug, PartialEq)]
@@ -38,29 +38,31 @@ pub struct Plan {
     pub vtk_every: usize,
 }
 
-/// A scene, set up: the world at its start and every typed parameter.
-pub struct Setup {
+/// A scene, set up: the world at its start and every typed parameter; a robot of `N` joints
+/// (6 by default; [`AnySetup`] sets a scene up with its own count).
+pub struct Setup<const N: usize = 6> {
     /// The world at its start.
-    pub world: World,
+    pub world: World<N>,
     /// The step's tuning.
     pub params: StepParams,
     /// The robot (as the core sees it).
-    pub robot: Robot<JOINTS>,
+    pub robot: Robot<N>,
     /// The core's tuning.
     pub inverse: InverseParams,
     /// What a run plans.
     pub plan: Plan,
     /// With `gel.support_motion.hidden`: the controller's model, the same world without the
     /// support motion (the controller steers on it, its joints drive `world`); none otherwise.
-    pub model: Option<Box<World>>,
+    pub model: Option<Box<World<N>>>,
 }
 
 impl Setup {
-    /// Sets `scene` up: gel at rest, needle straight at the start pose.
+    /// Sets `scene` up with a 6-joint robot (the RV-1A, a DH table, a 6-joint URDF): gel at
+    /// rest, needle straight at the start pose. [`AnySetup::build`] sets up any robot this host
+    /// runs.
     ///
     /// # Errors
-    /// [`SetupError`]: an invalid mesh, an unreachable start, a path or obstacle outside the gel,
-    /// a model that cannot be built.
+    /// As [`Setup::for_joints`]; a robot of another count is refused ([`SetupError::Robot`]).
     ///
     /// # Example
     /// ```
@@ -74,6 +76,51 @@ impl Setup {
     /// assert_eq!(s.params.interaction.puncture_force, scene.interaction.puncture_force);
     /// ```
     pub fn build(scene: &Scene) -> Result<Self, SetupError> {
+        Self::for_joints(scene)
+    }
+}
+
+/// Code generic over the joint count, called by [`with_setup`] on a scene set up with its
+/// robot's own count.
+pub trait WithSetup {
+    /// What the call gives.
+    type Output;
+    /// The call on a set-up of `N` joints.
+    fn with<const N: usize>(self, setup: Setup<N>) -> Self::Output;
+}
+
+/// Sets `scene` up with as many joints as its robot has (6 or 7, [`Scene::joint_count`]) and
+/// calls `f` on it: how a run reaches the const generic `N` of the world, the step and the
+/// core from a scene (through [`with_joints`], the one place where a count becomes `N`).
+///
+/// # Errors
+/// As [`Setup::for_joints`]; a URDF chain of another count is refused naming its joints
+/// ([`SetupError::Robot`], field `robot.urdf`).
+pub fn with_setup<F: WithSetup>(scene: &Scene, f: F) -> Result<F::Output, SetupError> {
+    struct Build<'a, F>(&'a Scene, F);
+    impl<F: WithSetup> WithJoints for Build<'_, F> {
+        type Output = Result<F::Output, SetupError>;
+        fn with<const N: usize>(self) -> Self::Output {
+            Ok(self.1.with(Setup::<N>::for_joints(self.0)?))
+        }
+    }
+    let n = scene.joint_count().map_err(robot_error)?;
+    with_joints(n, Build(scene, f)).unwrap_or_else(|| {
+        Err(SetupError::Robot {
+            field: "robot".into(),
+            reason: format!("a robot of {n} joints; this host runs arms of 6 or 7 joints"),
+        })
+    })
+}
+
+impl<const N: usize> Setup<N> {
+    /// Sets `scene` up with an `N`-joint robot: gel at rest, needle straight at the start pose.
+    ///
+    /// # Errors
+    /// [`SetupError`]: an invalid mesh, an unreachable start, a path or obstacle outside the gel,
+    /// a model that cannot be built.
+    ///
+    pub fn for_joints(scene: &Scene) -> Result<Self, SetupError> {
         let t0 = std::time::Instant::now();
         let path = scene.sampled_path().map_err(SetupError::Path)?;
         let mesh = gel_mesh(scene)?;
@@ -91,8 +138,8 @@ impl Setup {
                 source,
             }
         })?;
-        let q = start_joints(scene)?;
-        let robot = scene.robot().map_err(robot_error)?;
+        let robot = scene.robot_n::<N>().map_err(robot_error)?;
+        let q = start_joints_n(scene, &robot)?;
         let needle = start_needle(scene, &robot, &q)?;
         let obstacles = scene
             .obstacles
@@ -114,7 +161,7 @@ impl Setup {
             Some(m) if m.hidden => {
                 let mut still = scene.clone();
                 still.gel.support_motion = None;
-                Some(Box::new(Self::build(&still)?.world))
+                Some(Box::new(Self::for_joints(&still)?.world))
             }
             _ => None,
         };
@@ -166,12 +213,26 @@ pub fn support_motion(scene: &Scene) -> Result<Option<SupportMotion>, SetupError
     }
 }
 
-/// The robot and the core's tuning of `scene` (what `needle-controller` needs).
+/// The robot and the core's tuning of `scene` (what `needle-controller` needs): a robot of 6
+/// joints, the count the two-process mode runs.
 ///
 /// # Errors
-/// [`SetupError::Robot`] when the scene's URDF cannot be read as a 6-joint chain.
-pub fn core(scene: &Scene) -> Result<(Robot<JOINTS>, InverseParams), SetupError> {
-    Ok((scene.robot().map_err(robot_error)?, scene.inverse_params()))
+/// [`SetupError::Robot`] when the scene's robot is not a 6-joint chain (a 7-joint arm runs in
+/// one process, `needle run`).
+pub fn core(scene: &Scene) -> Result<(Robot<6>, InverseParams), SetupError> {
+    let robot = scene
+        .robot()
+        .map_err(|(field, reason)| match scene.joint_count() {
+            Ok(n) if n != 6 => SetupError::Robot {
+                field,
+                reason: format!(
+                    "{reason}: the two-process mode (`needle serve`, `needle-controller`) runs \
+                 6-joint robots; run a {n}-joint arm in one process (`needle run`)"
+                ),
+            },
+            _ => robot_error((field, reason)),
+        })?;
+    Ok((robot, scene.inverse_params()))
 }
 
 /// The error of [`Scene::robot`] as a setup error.
@@ -376,27 +437,47 @@ pub fn fixed_nodes(scene: &Scene, mesh: &TetMesh) -> Result<Vec<usize>, SetupErr
 
 /// The starting joints: the scene's `robot.start_joints_deg` when given, else the needle straight
 /// along the path's entry tangent, its tip `approach` before the entry point (damped
-/// least-squares IK from mid-range).
+/// least-squares IK from `robot.ik_seed_deg`, else from mid-range).
 ///
 /// # Errors
 /// [`SetupError::StartPose`], [`SetupError::StartOutOfReach`], [`SetupError::Path`].
-pub fn start_joints(scene: &Scene) -> Result<[f64; JOINTS], SetupError> {
+pub fn start_joints(scene: &Scene) -> Result<[f64; 6], SetupError> {
+    start_joints_n(scene, &scene.robot().map_err(robot_error)?)
+}
+
+/// [`start_joints`] of an `N`-joint `chain` (the scene's robot).
+///
+/// # Errors
+/// As [`start_joints`].
+pub fn start_joints_n<const N: usize>(
+    scene: &Scene,
+    chain: &Robot<N>,
+) -> Result<[f64; N], SetupError> {
     if let Some(q) = &scene.robot.start_joints_deg {
-        let mut out = [0.0; JOINTS];
+        let mut out = [0.0; N];
         for (o, v) in out.iter_mut().zip(q) {
             *o = v.to_radians();
         }
         return Ok(out);
     }
-    let chain = scene.robot().map_err(robot_error)?;
+    let seed = match &scene.robot.ik_seed_deg {
+        Some(v) => {
+            let mut seed = [0.0; N];
+            for (o, d) in seed.iter_mut().zip(v) {
+                *o = d.to_radians();
+            }
+            seed
+        }
+        None => chain.mid_range(),
+    };
     let path = scene.sampled_path().map_err(SetupError::Path)?;
     let t = path.entry_tangent();
     let base = path.start_tip() - scene.needle.length * t;
     let rep = solve_ik(
-        &chain,
+        chain,
         [base.x, base.y, base.z],
         [t.x, t.y, t.z],
-        &chain.mid_range(),
+        &seed,
         &IkParams::default(),
     )
     .map_err(SetupError::StartPose)?;
@@ -416,10 +497,10 @@ pub fn start_joints(scene: &Scene) -> Result<[f64; JOINTS], SetupError> {
 /// The needle of `scene` straight at the pose `B(q)` of the robot, free-floating (held by the
 /// base constraint only), with the material stiffness only (see
 /// `CorotationalBeams::set_geometric_stiffness`).
-fn start_needle(
+fn start_needle<const N: usize>(
     scene: &Scene,
-    robot: &Robot<JOINTS>,
-    q: &[f64; JOINTS],
+    robot: &Robot<N>,
+    q: &[f64; N],
 ) -> Result<NeedleModel, SetupError> {
     let b = robot.tool_pose(q);
     let r_node = b.rotation * node_frame_offset(&Vector3::x());

@@ -13,7 +13,6 @@ use crate::scene::SampledPath;
 use crate::support_motion::SupportMotion;
 use nalgebra::{Matrix3, Rotation3, Vector3};
 use needle_core::kinematics::{Kinematics, Pose, Robot};
-use needle_core::payload::JOINTS;
 
 /// A sliding point ψ: a gel material point the shaft must pass through.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -24,10 +23,10 @@ pub struct SlidingPoint {
     pub at: Embedded,
 }
 
-/// What a [`World`] is built from (by [`crate::setup`], or by hand).
-pub struct WorldParts {
+/// What a [`World`] is built from (by [`crate::setup`], or by hand); `N` joints.
+pub struct WorldParts<const N: usize = 6> {
     /// The robot holding the needle.
-    pub robot: Robot<JOINTS>,
+    pub robot: Robot<N>,
     /// The gel at rest.
     pub gel: GelModel,
     /// The needle at its start pose, base node 0 on `B(q)`.
@@ -39,15 +38,16 @@ pub struct WorldParts {
     /// Obstacle centres (rest configuration) and radii [mm].
     pub obstacles: Vec<(Vector3<f64>, f64)>,
     /// Start joints [rad].
-    pub q: [f64; JOINTS],
+    pub q: [f64; N],
     /// A prescribed motion of the gel's fixed nodes (none: they stay at rest).
     pub support_motion: Option<SupportMotion>,
 }
 
-/// The whole simulated system and its interaction state.
-pub struct World {
+/// The whole simulated system and its interaction state; the robot has `N` joints (6 by
+/// default; [`crate::setup::AnySetup`] picks it from the scene).
+pub struct World<const N: usize = 6> {
     /// The robot.
-    pub robot: Robot<JOINTS>,
+    pub robot: Robot<N>,
     /// The gel.
     pub gel: GelModel,
     /// The needle: nodes `0..n`, base first, 6 dofs each (translation, then a world-frame
@@ -76,7 +76,7 @@ pub struct World {
     /// Smallest rest element size of the gel [mm] (see [`element_size`]).
     pub(crate) min_element_size: f64,
     /// Joints [rad].
-    pub q: [f64; JOINTS],
+    pub q: [f64; N],
     /// Target arc length from the start tip [mm].
     pub c: f64,
     /// Steps done.
@@ -140,13 +140,13 @@ pub fn element_size(nodes: &[Vector3<f64>], t: &[usize; 4]) -> f64 {
     (6.0 * std::f64::consts::SQRT_2 * v).cbrt()
 }
 
-impl World {
+impl<const N: usize> World<N> {
     /// Assembles a world from its parts: embeds the path's entry point and the obstacles in the
     /// rest gel, finds its surface and smallest element.
     ///
     /// # Errors
     /// [`SetupError::EntryOffGel`], [`SetupError::ObstacleOutside`].
-    pub fn try_new(parts: WorldParts) -> Result<Self, SetupError> {
+    pub fn try_new(parts: WorldParts<N>) -> Result<Self, SetupError> {
         let WorldParts {
             robot,
             gel,
@@ -220,7 +220,7 @@ impl World {
     }
 
     /// Needle-base pose `B(q)` in the world.
-    pub fn base_pose(&self, q: &[f64; JOINTS]) -> Pose {
+    pub fn base_pose(&self, q: &[f64; N]) -> Pose {
         self.robot.tool_pose(q)
     }
 

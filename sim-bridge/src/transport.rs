@@ -12,7 +12,7 @@ use core::fmt;
 use core::time::Duration;
 use needle_core::inverse::{Controller, InverseParams, StepError};
 use needle_core::kinematics::Robot;
-use needle_core::payload::{Command, ComplianceFrame, JOINTS, ValidationError};
+use needle_core::payload::{Command, ComplianceFrame, ValidationError};
 use std::time::Instant;
 
 /// How one exchange went.
@@ -82,7 +82,8 @@ impl From<StepError> for TransportError {
     }
 }
 
-/// Carries one frame to the core and its command back.
+/// Carries one frame to the core and its command back; frames and commands of `M` rows and `N`
+/// joints (6 by default).
 ///
 /// # Example
 /// ```
@@ -96,7 +97,7 @@ impl From<StepError> for TransportError {
 /// let mut cmd = Command::<24>::new_boxed();
 /// assert!(t.exchange(&frame, &mut cmd).is_err());
 /// ```
-pub trait Transport<const M: usize> {
+pub trait Transport<const M: usize, const N: usize = 6> {
     /// Hands `frame` to the core and writes the command answering it (same `sequence`, checked
     /// with [`Command::validate`]) into `cmd`.
     ///
@@ -104,36 +105,37 @@ pub trait Transport<const M: usize> {
     /// [`TransportError`]; `cmd` is then unspecified (the host must not apply it).
     fn exchange(
         &mut self,
-        frame: &ComplianceFrame<M>,
-        cmd: &mut Command<M>,
+        frame: &ComplianceFrame<M, N>,
+        cmd: &mut Command<M, N>,
     ) -> Result<ExchangeReport, TransportError>;
 }
 
-/// The core in the same process: [`Controller::step`] on the caller's frame, no copy.
-pub struct InProcess<const M: usize> {
-    controller: Box<Controller<M>>,
+/// The core in the same process: [`Controller::step`] on the caller's frame, no copy; a robot
+/// of `N` joints (6 by default).
+pub struct InProcess<const M: usize, const N: usize = 6> {
+    controller: Box<Controller<M, N>>,
 }
 
-impl<const M: usize> InProcess<M> {
+impl<const M: usize, const N: usize> InProcess<M, N> {
     /// A core for `chain` with tuning `params` (the controller, ≈ 300 KiB at `M = 192`, is built
     /// in place on the heap).
-    pub fn new(robot: impl Into<Robot<JOINTS>>, params: InverseParams) -> Self {
+    pub fn new(robot: impl Into<Robot<N>>, params: InverseParams) -> Self {
         Self {
             controller: Controller::new_boxed(robot, params),
         }
     }
 
     /// The core's controller (tuning, warm-start state).
-    pub fn controller(&mut self) -> &mut Controller<M> {
+    pub fn controller(&mut self) -> &mut Controller<M, N> {
         &mut self.controller
     }
 }
 
-impl<const M: usize> Transport<M> for InProcess<M> {
+impl<const M: usize, const N: usize> Transport<M, N> for InProcess<M, N> {
     fn exchange(
         &mut self,
-        frame: &ComplianceFrame<M>,
-        cmd: &mut Command<M>,
+        frame: &ComplianceFrame<M, N>,
+        cmd: &mut Command<M, N>,
     ) -> Result<ExchangeReport, TransportError> {
         let t = Instant::now();
         self.controller.step(frame, cmd)?;

@@ -5,6 +5,7 @@
 // Units are written in brackets ([mm], [N]) as in the workspace style: not intra-doc links.
 #![allow(rustdoc::broken_intra_doc_links)]
 
+use crate::joints::Joints;
 use nalgebra::Vector3;
 use std::fs::File;
 use std::path::{Path, PathBuf};
@@ -89,8 +90,11 @@ pub struct StepMetrics {
     pub rows: usize,
     /// Stage times: free motion, proximity, compliance, constraint solves (all), correction [ms].
     pub time_ms: [f64; 5],
-    /// Joint vector after the step [rad].
-    pub q: [f64; 6],
+    /// Joint vector after the step [rad], one per joint of the robot.
+    pub q: Joints,
+    /// The smallest distance of any joint to a position limit, as a fraction of its half range
+    /// (1: mid-range, 0: at a limit; see [`crate::step::StepReport::limit_margin`]).
+    pub limit_margin: f64,
 }
 
 /// Writes [`StepMetrics`] rows to a CSV file.
@@ -98,14 +102,16 @@ pub struct MetricsWriter {
     out: csv::Writer<File>,
     file: PathBuf,
     obstacles: usize,
+    joints: usize,
 }
 
 impl MetricsWriter {
-    /// Creates the file and writes the header; `obstacles` fixes the number of clearance columns.
+    /// Creates the file and writes the header; `obstacles` fixes the number of clearance columns,
+    /// `joints` the number of joint columns.
     ///
     /// # Errors
     /// [`OutputError`] naming the file.
-    pub fn create(path: &Path, obstacles: usize) -> Result<Self, OutputError> {
+    pub fn create(path: &Path, obstacles: usize, joints: usize) -> Result<Self, OutputError> {
         let err = |e: csv::Error| OutputError::new(path, e);
         let mut out = csv::Writer::from_path(path).map_err(err)?;
         let mut header = vec![
@@ -133,12 +139,14 @@ impl MetricsWriter {
             ]
             .map(String::from),
         );
-        header.extend((1..=6).map(|j| format!("q{j}_rad")));
+        header.extend((1..=joints).map(|j| format!("q{j}_rad")));
+        header.push("limit_margin".into());
         out.write_record(&header).map_err(err)?;
         Ok(Self {
             out,
             file: path.to_owned(),
             obstacles,
+            joints,
         })
     }
 
@@ -161,7 +169,8 @@ impl MetricsWriter {
         row.push(m.flags.to_string());
         row.push(m.rows.to_string());
         row.extend(m.time_ms.iter().map(|v| v.to_string()));
-        row.extend(m.q.iter().map(|v| v.to_string()));
+        row.extend((0..self.joints).map(|j| m.q.get(j).copied().unwrap_or(f64::NAN).to_string()));
+        row.push(m.limit_margin.to_string());
         self.out
             .write_record(&row)
             .map_err(|e| OutputError::new(&self.file, e))
@@ -191,7 +200,7 @@ mod tests {
     #[test]
     fn csv_has_one_column_per_header_field() {
         let path = tmp("metrics.csv");
-        let mut w = MetricsWriter::create(&path, 3).unwrap();
+        let mut w = MetricsWriter::create(&path, 3, 6).unwrap();
         w.write(&StepMetrics {
             step: 1,
             clearance: vec![1.0, 2.0, 3.0],

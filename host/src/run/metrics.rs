@@ -132,7 +132,7 @@ impl Default for PathMetrics {
 
 impl PathMetrics {
     /// After step `r` of `world`.
-    pub fn step(&mut self, world: &World, r: &StepReport) {
+    pub fn step<const N: usize>(&mut self, world: &World<N>, r: &StepReport) {
         let end = world.target(world.path.total_length());
         self.e_end = (r.tip - end).norm();
         if self.e_end <= REACH_TOLERANCE_MM && self.steps_to_target.is_none() {

@@ -38,11 +38,10 @@ use crate::error::{SetupError, chain};
 use crate::open_loop::OpenLoop;
 use crate::output::OutputError;
 use crate::scene::Scene;
-use crate::setup::{Plan, Setup};
+use crate::setup::{Plan, Setup, WithSetup, with_setup};
 use crate::step::{Pipeline, ROWS, StepReport};
 use crate::world::World;
 use needle_bridge::{InProcess, Transport};
-use needle_core::payload::JOINTS;
 use outputs::{MetricsCsv, SummaryJson};
 use remote::Remote;
 use replay_out::ReplayRecorder;
@@ -159,18 +158,18 @@ pub enum RunError {
 
 /// What watches a run: called after every step with the world and the step's report, and once
 /// at the end with the summary.
-pub trait Observer {
+pub trait Observer<const N: usize = 6> {
     /// After a step.
     ///
     /// # Errors
     /// An output that cannot be written (the run stops with it).
-    fn step(&mut self, world: &World, report: &StepReport) -> Result<(), OutputError>;
+    fn step(&mut self, world: &World<N>, report: &StepReport) -> Result<(), OutputError>;
 
     /// At the end of the run, with the final state of the world.
     ///
     /// # Errors
     /// An output that cannot be written.
-    fn finish(&mut self, _world: &World, _summary: &RunSummary) -> Result<(), OutputError> {
+    fn finish(&mut self, _world: &World<N>, _summary: &RunSummary) -> Result<(), OutputError> {
         Ok(())
     }
 }
@@ -195,42 +194,45 @@ pub trait Observer {
 pub fn run(
     scene: &Scene,
     opts: &RunOptions,
-    observe: impl FnMut(&StepReport),
+    mut observe: impl FnMut(&StepReport),
 ) -> Result<RunResult, RunError> {
-    let setup = Setup::build(scene)?;
-    let mut core = InProcess::<ROWS>::new(setup.robot, setup.inverse);
-    run_setup(setup, opts, &mut core, observe)
+    run_until(scene, opts, |r| {
+        observe(r);
+        ControlFlow::Continue(())
+    })
 }
 
 /// [`run`] with the inverse controller reached through `transport` (in process, or in another
-/// process over shared memory). The naive baseline does not use the transport.
+/// process over shared memory), for a robot of `N` joints (the transport's). The naive baseline
+/// does not use the transport.
 ///
 /// # Errors
-/// [`RunError`] if the simulation cannot be set up or an output cannot be written.
-pub fn run_with(
+/// [`RunError`] if the simulation cannot be set up (a robot of another joint count than the
+/// transport's among the reasons) or an output cannot be written.
+pub fn run_with<const N: usize>(
     scene: &Scene,
     opts: &RunOptions,
-    transport: &mut dyn Transport<ROWS>,
+    transport: &mut dyn Transport<ROWS, N>,
     observe: impl FnMut(&StepReport),
 ) -> Result<RunResult, RunError> {
-    run_setup(Setup::build(scene)?, opts, transport, observe)
+    run_setup(Setup::<N>::for_joints(scene)?, opts, transport, observe)
 }
 
 /// The observers writing the files of a run into `opts.out_dir` (none without it): the
 /// metrics CSV, VTK frames every `vtk_every` steps (none with 0), `summary.json` and
 /// `replay.html`.
-fn outputs(
+fn outputs<const N: usize>(
     opts: &RunOptions,
     vtk_every: usize,
     plan: &Plan,
     dt: f64,
-    world: &World,
-) -> Result<Vec<Box<dyn Observer>>, OutputError> {
+    world: &World<N>,
+) -> Result<Vec<Box<dyn Observer<N>>>, OutputError> {
     let Some(dir) = &opts.out_dir else {
         return Ok(Vec::new());
     };
     std::fs::create_dir_all(dir).map_err(|e| OutputError::new(dir, e))?;
-    let mut out: Vec<Box<dyn Observer>> = vec![Box::new(MetricsCsv::create(dir, world)?)];
+    let mut out: Vec<Box<dyn Observer<N>>> = vec![Box::new(MetricsCsv::create(dir, world)?)];
     if vtk_every > 0 {
         out.push(Box::new(VtkFrames::start(dir, vtk_every, dt, world)?));
     }
@@ -241,13 +243,13 @@ fn outputs(
 
 /// The naive baseline's trajectory replayed open loop (up to where the rigid IK failed, and
 /// why it stopped there).
-fn naive_replay(
-    world: &World,
+fn naive_replay<const N: usize>(
+    world: &World<N>,
     params: &crate::step::StepParams,
-    robot: needle_core::kinematics::Robot<JOINTS>,
+    robot: needle_core::kinematics::Robot<N>,
     inverse: needle_core::inverse::InverseParams,
     steps: usize,
-) -> (Option<OpenLoop>, Option<(usize, StopReason)>) {
+) -> (Option<OpenLoop<N>>, Option<(usize, StopReason)>) {
     let (joints, stop) = naive::naive_trajectory(world, &params.insertion, steps);
     let replay = OpenLoop::new(robot, inverse, joints);
     let stop = stop.map(|e| (e.step(), StopReason::IkFailed { message: chain(&e) }));
@@ -260,27 +262,27 @@ fn naive_replay(
 /// constraint solve at the model's joints per step), where the error is measured. The
 /// controller sees nothing of the motion, not even through the needle: the model is a closed
 /// simulation, as the controller's model of a real patient would be.
-struct HiddenMotion {
-    model: Box<World>,
-    pipeline: Pipeline,
-    replay: OpenLoop,
+struct HiddenMotion<const N: usize> {
+    model: Box<World<N>>,
+    pipeline: Pipeline<N>,
+    replay: OpenLoop<N>,
 }
 
-impl HiddenMotion {
+impl<const N: usize> HiddenMotion<N> {
     /// One step: the model's (through the controller), then the world's at the model's joints.
     /// The world's report carries the controller's status flags (unreachable, clearance active,
     /// shortened, …: what the run's watchers and counts read) besides its own solve's
     /// convergence.
     fn step(
         &mut self,
-        pipeline: &mut Pipeline,
-        world: &mut World,
+        pipeline: &mut Pipeline<N>,
+        world: &mut World<N>,
         params: &crate::step::StepParams,
-        controller: &mut dyn Transport<ROWS>,
+        controller: &mut dyn Transport<ROWS, N>,
     ) -> Result<StepReport, crate::error::SimError> {
         use needle_core::payload::StatusFlags;
         let m = self.pipeline.step(&mut self.model, params, controller)?;
-        self.replay.joints.push(m.q);
+        self.replay.joints.push(self.model.q);
         let mut r = pipeline.step(world, params, &mut self.replay)?;
         r.solver.flags |= m.solver.flags & !StatusFlags::NOT_CONVERGED;
         Ok(r)
@@ -288,11 +290,11 @@ impl HiddenMotion {
 }
 
 /// The run's own checks and records of each step: divergence checks, statistics, files.
-struct Books {
+struct Books<const N: usize> {
     stats: Statistics,
     watchdog: Watchdog,
     blocked: Blocked,
-    files: Vec<Box<dyn Observer>>,
+    files: Vec<Box<dyn Observer<N>>>,
 }
 
 /// Why a run stops after a step.
@@ -303,10 +305,10 @@ enum Stop {
     After(StopReason),
 }
 
-impl Books {
+impl<const N: usize> Books<N> {
     /// Checks step `r` and records it; a reason to stop instead ([`Stop::Before`]: the step is
     /// then not recorded in the files) or after it ([`Stop::After`]).
-    fn step(&mut self, world: &World, r: &StepReport) -> Result<Option<Stop>, RunError> {
+    fn step(&mut self, world: &World<N>, r: &StepReport) -> Result<Option<Stop>, RunError> {
         if let Some(why) = self.watchdog.after_step(world, r) {
             return Ok(Some(Stop::Before(why)));
         }
@@ -329,10 +331,10 @@ impl Books {
 ///
 /// # Errors
 /// [`RunError::Output`] if an output cannot be written.
-pub fn run_setup(
-    setup: Setup,
+pub fn run_setup<const N: usize>(
+    setup: Setup<N>,
     opts: &RunOptions,
-    transport: &mut dyn Transport<ROWS>,
+    transport: &mut dyn Transport<ROWS, N>,
     mut observe: impl FnMut(&StepReport),
 ) -> Result<RunResult, RunError> {
     run_setup_until(setup, opts, transport, |r| {
@@ -367,19 +369,29 @@ pub fn run_until(
     opts: &RunOptions,
     observe: impl FnMut(&StepReport) -> ControlFlow<()>,
 ) -> Result<RunResult, RunError> {
-    let setup = Setup::build(scene)?;
-    let mut core = InProcess::<ROWS>::new(setup.robot, setup.inverse);
-    run_setup_until(setup, opts, &mut core, observe)
+    /// The run in this process, with the scene's own joint count.
+    struct InProcessRun<'a, F> {
+        opts: &'a RunOptions,
+        observe: F,
+    }
+    impl<F: FnMut(&StepReport) -> ControlFlow<()>> WithSetup for InProcessRun<'_, F> {
+        type Output = Result<RunResult, RunError>;
+        fn with<const N: usize>(self, setup: Setup<N>) -> Self::Output {
+            let mut core = InProcess::<ROWS, N>::new(setup.robot, setup.inverse);
+            run_setup_until(setup, self.opts, &mut core, self.observe)
+        }
+    }
+    with_setup(scene, InProcessRun { opts, observe })?
 }
 
 /// [`run_setup`] whose observer may stop the run ([`run_until`]).
 ///
 /// # Errors
 /// [`RunError::Output`] if an output cannot be written.
-pub fn run_setup_until(
-    setup: Setup,
+pub fn run_setup_until<const N: usize>(
+    setup: Setup<N>,
     opts: &RunOptions,
-    transport: &mut dyn Transport<ROWS>,
+    transport: &mut dyn Transport<ROWS, N>,
     mut observe: impl FnMut(&StepReport) -> ControlFlow<()>,
 ) -> Result<RunResult, RunError> {
     let Setup {
@@ -407,7 +419,7 @@ pub fn run_setup_until(
     };
     let n = open_loop.as_ref().map_or(steps, |o| o.joints.len());
     let settle = settling_steps(opts, &params, n);
-    let core: &mut dyn Transport<ROWS> = match open_loop.as_mut() {
+    let core: &mut dyn Transport<ROWS, N> = match open_loop.as_mut() {
         Some(o) => o,
         None => transport,
     };

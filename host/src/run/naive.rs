@@ -5,7 +5,6 @@
 use crate::step::Insertion;
 use crate::world::World;
 use needle_core::ik::{IkError, IkParams, solve_ik};
-use needle_core::payload::JOINTS;
 
 /// Why the naive trajectory ends before its last step.
 #[derive(Debug, thiserror::Error)]
@@ -42,11 +41,11 @@ impl NaiveStop {
 /// The naive baseline's joints from `world`'s start: for each of `steps` steps, IK of a rigid
 /// straight needle with its tip on the rest path at the step's target and its axis along the
 /// rest path's tangent. Stops at the first pose the IK cannot reach, and says why.
-pub fn naive_trajectory(
-    world: &World,
+pub fn naive_trajectory<const N: usize>(
+    world: &World<N>,
     insertion: &Insertion,
     steps: usize,
-) -> (Vec<[f64; JOINTS]>, Option<NaiveStop>) {
+) -> (Vec<[f64; N]>, Option<NaiveStop>) {
     let path = &world.path;
     let mut q = world.q;
     // Grown step by step (`steps` may be far more than the path needs).

@@ -16,13 +16,13 @@ impl MetricsCsv {
     ///
     /// # Errors
     /// [`OutputError`] naming the file.
-    pub fn create(dir: &Path, world: &World) -> Result<Self, OutputError> {
-        MetricsWriter::create(&dir.join("steps.csv"), world.obstacles.len()).map(Self)
+    pub fn create<const N: usize>(dir: &Path, world: &World<N>) -> Result<Self, OutputError> {
+        MetricsWriter::create(&dir.join("steps.csv"), world.obstacles.len(), N).map(Self)
     }
 }
 
-impl Observer for MetricsCsv {
-    fn step(&mut self, world: &World, r: &StepReport) -> Result<(), OutputError> {
+impl<const N: usize> Observer<N> for MetricsCsv {
+    fn step(&mut self, world: &World<N>, r: &StepReport) -> Result<(), OutputError> {
         self.0.write(&StepMetrics {
             step: r.step,
             c: r.c,
@@ -46,10 +46,11 @@ impl Observer for MetricsCsv {
                 r.times.after_solve(),
             ],
             q: r.q,
+            limit_margin: r.limit_margin,
         })
     }
 
-    fn finish(&mut self, _: &World, _: &RunSummary) -> Result<(), OutputError> {
+    fn finish(&mut self, _: &World<N>, _: &RunSummary) -> Result<(), OutputError> {
         self.0.flush()
     }
 }
@@ -57,12 +58,12 @@ impl Observer for MetricsCsv {
 /// `summary.json`: the run's summary, written at the end.
 pub struct SummaryJson(pub PathBuf);
 
-impl Observer for SummaryJson {
-    fn step(&mut self, _: &World, _: &StepReport) -> Result<(), OutputError> {
+impl<const N: usize> Observer<N> for SummaryJson {
+    fn step(&mut self, _: &World<N>, _: &StepReport) -> Result<(), OutputError> {
         Ok(())
     }
 
-    fn finish(&mut self, _: &World, summary: &RunSummary) -> Result<(), OutputError> {
+    fn finish(&mut self, _: &World<N>, summary: &RunSummary) -> Result<(), OutputError> {
         let file = self.0.join("summary.json");
         let text = serde_json::to_string_pretty(summary).map_err(|e| OutputError::new(&file, e))?;
         std::fs::write(&file, text).map_err(|e| OutputError::new(&file, e))

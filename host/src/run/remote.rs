@@ -12,8 +12,8 @@ use needle_core::payload::{Command, ComplianceFrame};
 use std::time::{Duration, Instant};
 
 /// A transport wrapped with pacing and holding.
-pub struct Remote<'a> {
-    inner: &'a mut dyn Transport<ROWS>,
+pub struct Remote<'a, const N: usize = 6> {
+    inner: &'a mut dyn Transport<ROWS, N>,
     period: Option<Duration>,
     next_start: Instant,
     give_up_after: Option<Duration>,
@@ -27,11 +27,11 @@ pub struct Remote<'a> {
     pub gave_up: Option<Duration>,
 }
 
-impl<'a> Remote<'a> {
+impl<'a, const N: usize> Remote<'a, N> {
     /// Wraps `inner`: a step at most every `period` (none: lock-step), give up after
     /// `give_up_after` without a command (none: hold for ever).
     pub fn new(
-        inner: &'a mut dyn Transport<ROWS>,
+        inner: &'a mut dyn Transport<ROWS, N>,
         period: Option<Duration>,
         give_up_after: Option<Duration>,
     ) -> Self {
@@ -60,7 +60,7 @@ impl<'a> Remote<'a> {
     }
 }
 
-impl Remote<'_> {
+impl<const N: usize> Remote<'_, N> {
     /// Why a step failed with `e`, as the run's summary says it.
     pub fn why_stopped(&self, e: &SimError) -> StopReason {
         match self.gave_up {
@@ -72,11 +72,11 @@ impl Remote<'_> {
     }
 }
 
-impl Transport<ROWS> for Remote<'_> {
+impl<const N: usize> Transport<ROWS, N> for Remote<'_, N> {
     fn exchange(
         &mut self,
-        frame: &ComplianceFrame<ROWS>,
-        cmd: &mut Command<ROWS>,
+        frame: &ComplianceFrame<ROWS, N>,
+        cmd: &mut Command<ROWS, N>,
     ) -> Result<ExchangeReport, TransportError> {
         let (start, k) = (Instant::now(), frame.sequence);
         let mut holding = false;

@@ -39,7 +39,12 @@ impl ReplayRecorder {
     ///
     /// # Errors
     /// [`OutputError`] when the gel's surface cannot be mapped.
-    pub fn start(dir: &Path, plan: &Plan, dt: f64, world: &World) -> Result<Self, OutputError> {
+    pub fn start<const N: usize>(
+        dir: &Path,
+        plan: &Plan,
+        dt: f64,
+        world: &World<N>,
+    ) -> Result<Self, OutputError> {
         let file = dir.join("replay.html");
         let surface = SurfaceMap::from_triangles(&world.gel.mesh().surface_triangles())
             .map_err(|e| invalid(&file, e))?;
@@ -75,9 +80,9 @@ impl ReplayRecorder {
     }
 
     /// The frame of `world` after `steps` steps.
-    fn frame(
+    fn frame<const N: usize>(
         &self,
-        world: &World,
+        world: &World<N>,
         steps: usize,
         target: nalgebra::Vector3<f64>,
     ) -> Result<ReplayFrame, OutputError> {
@@ -104,8 +109,8 @@ impl ReplayRecorder {
     }
 }
 
-impl Observer for ReplayRecorder {
-    fn step(&mut self, world: &World, r: &StepReport) -> Result<(), OutputError> {
+impl<const N: usize> Observer<N> for ReplayRecorder {
+    fn step(&mut self, world: &World<N>, r: &StepReport) -> Result<(), OutputError> {
         let e = &mut self.data.error;
         e.steps.push(u32::try_from(r.step).unwrap_or(u32::MAX));
         e.depth.push(r.depth);
@@ -120,7 +125,7 @@ impl Observer for ReplayRecorder {
         Ok(())
     }
 
-    fn finish(&mut self, _: &World, s: &RunSummary) -> Result<(), OutputError> {
+    fn finish(&mut self, _: &World<N>, s: &RunSummary) -> Result<(), OutputError> {
         if let Some(last) = self.pending.take() {
             self.data.frames.push(last);
         }

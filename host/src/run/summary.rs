@@ -179,7 +179,7 @@ pub struct Statistics {
 
 impl Statistics {
     /// For a run of `steps` steps of `world`.
-    pub fn new(world: &World, steps: usize) -> Self {
+    pub fn new<const N: usize>(world: &World<N>, steps: usize) -> Self {
         Self {
             min_clearance: vec![f64::INFINITY; world.obstacles.len()],
             max_strain: 0.0,
@@ -202,8 +202,8 @@ impl Statistics {
     }
 }
 
-impl Observer for Statistics {
-    fn step(&mut self, world: &World, r: &StepReport) -> Result<(), OutputError> {
+impl<const N: usize> Observer<N> for Statistics {
+    fn step(&mut self, world: &World<N>, r: &StepReport) -> Result<(), OutputError> {
         for (m, c) in self.min_clearance.iter_mut().zip(world.clearances()) {
             *m = m.min(c);
         }
@@ -258,7 +258,12 @@ fn stage_timing(reports: &[StepReport]) -> StageTiming {
 
 impl Statistics {
     /// The summary of a run of `world` planned by `plan` that ended as `end` says.
-    pub fn summary(&self, plan: &Plan, world: &World, end: Ending<'_>) -> RunSummary {
+    pub fn summary<const N: usize>(
+        &self,
+        plan: &Plan,
+        world: &World<N>,
+        end: Ending<'_>,
+    ) -> RunSummary {
         let reports = end.reports;
         let inside: Vec<&StepReport> = reports.iter().filter(|r| r.inserted).collect();
         let e_mean = if inside.is_empty() {

@@ -42,7 +42,12 @@ impl VtkFrames {
     ///
     /// # Errors
     /// [`OutputError`] naming the file.
-    pub fn start(dir: &Path, every: usize, dt: f64, world: &World) -> Result<Self, OutputError> {
+    pub fn start<const N: usize>(
+        dir: &Path,
+        every: usize,
+        dt: f64,
+        world: &World<N>,
+    ) -> Result<Self, OutputError> {
         let mut me = Self {
             dir: dir.to_owned(),
             every: every.max(1),
@@ -56,7 +61,7 @@ impl VtkFrames {
     }
 
     /// Writes frame `k` of `world` and rewrites the collections.
-    fn write(&mut self, world: &World, k: usize) -> Result<(), OutputError> {
+    fn write<const N: usize>(&mut self, world: &World<N>, k: usize) -> Result<(), OutputError> {
         let t = k as f64 * self.dt;
         let grids = [
             gel(world),
@@ -87,8 +92,8 @@ impl VtkFrames {
     }
 }
 
-impl Observer for VtkFrames {
-    fn step(&mut self, world: &World, r: &StepReport) -> Result<(), OutputError> {
+impl<const N: usize> Observer<N> for VtkFrames {
+    fn step(&mut self, world: &World<N>, r: &StepReport) -> Result<(), OutputError> {
         self.forces = (r.forces.clone(), r.needle_node_forces.clone());
         if (r.step + 1).is_multiple_of(self.every) {
             self.write(world, r.step + 1)?;
@@ -96,7 +101,7 @@ impl Observer for VtkFrames {
         Ok(())
     }
 
-    fn finish(&mut self, world: &World, _: &RunSummary) -> Result<(), OutputError> {
+    fn finish(&mut self, world: &World<N>, _: &RunSummary) -> Result<(), OutputError> {
         if world.steps != self.last_frame {
             self.write(world, world.steps)?;
         }
@@ -105,7 +110,7 @@ impl Observer for VtkFrames {
 }
 
 /// The gel at rest with its displacement, and the state of each element.
-fn gel(world: &World) -> Grid {
+fn gel<const N: usize>(world: &World<N>) -> Grid {
     let gel = &world.gel;
     let rest = &gel.mesh().nodes;
     let x = gel.positions();
@@ -174,7 +179,7 @@ fn polyline(points: Vec<Vector3<f64>>) -> Grid {
 }
 
 /// The needle with the constraints' nodal forces (zero before the first step).
-fn needle(world: &World, nodal: &[Vector3<f64>]) -> Grid {
+fn needle<const N: usize>(world: &World<N>, nodal: &[Vector3<f64>]) -> Grid {
     let x = world.needle.positions();
     let mut grid = polyline(x.to_vec());
     let forces: Vec<Vector3<f64>> = (0..x.len())
@@ -188,7 +193,7 @@ fn needle(world: &World, nodal: &[Vector3<f64>]) -> Grid {
 }
 
 /// The planned path in the deformed gel, 201 points from the entry approach to the end.
-fn path(world: &World) -> Grid {
+fn path<const N: usize>(world: &World<N>) -> Grid {
     polyline(
         (0..=200)
             .map(|i| world.target(world.path.approach + world.path.length() * i as f64 / 200.0))
@@ -197,7 +202,7 @@ fn path(world: &World) -> Grid {
 }
 
 /// Each obstacle as a sphere surface around its deformed centre.
-fn obstacles(world: &World) -> Grid {
+fn obstacles<const N: usize>(world: &World<N>) -> Grid {
     let (unit, tris) = unit_sphere(2);
     let clearance = world.clearances();
     let mut grid = Grid::default();

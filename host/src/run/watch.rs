@@ -224,7 +224,7 @@ pub struct Watchdog {
 
 impl Watchdog {
     /// The checks for `world` at rest.
-    pub fn new(world: &World) -> Self {
+    pub fn new<const N: usize>(world: &World<N>) -> Self {
         let (lo, hi) = world.gel.mesh().bounds();
         let diagonal = (hi - lo).norm();
         Self {
@@ -245,7 +245,11 @@ impl Watchdog {
 
     /// The cheap checks after every step: finite report, tip near the gel, gel displacement,
     /// needle chord.
-    pub fn after_step(&self, world: &World, r: &StepReport) -> Option<StopReason> {
+    pub fn after_step<const N: usize>(
+        &self,
+        world: &World<N>,
+        r: &StepReport,
+    ) -> Option<StopReason> {
         let finite = r.error.is_finite()
             && r.depth.is_finite()
             && r.tip.iter().chain(r.target.iter()).all(|v| v.is_finite())

@@ -2,6 +2,8 @@
 //! controller's tuning.
 
 use super::{PoseSpec, Scene};
+use crate::joints::SUPPORTED_JOINTS;
+use crate::robot::urdf::UrdfError;
 use crate::robot::urdf::{UrdfReason, load_robot};
 use nalgebra::{Rotation3, Vector3};
 use needle_core::SerialChain;
@@ -9,6 +11,17 @@ use needle_core::constraint::GsParams;
 use needle_core::inverse::{InverseParams, JacobianMode, StepMethod};
 use needle_core::kinematics::{DhChain, DhJoint, JointLimit, Kinematics, Pose, Robot};
 use std::path::Path;
+
+/// A URDF loader's error as `(field, reason)`: the link fields for a missing link or chain,
+/// `robot.urdf` otherwise.
+fn urdf_error(e: UrdfError) -> (String, String) {
+    let field = match &e.reason {
+        UrdfReason::MissingLink { role: "base", .. } => "robot.base_link",
+        UrdfReason::MissingLink { .. } | UrdfReason::NoPath { .. } => "robot.tip_link",
+        _ => "robot.urdf",
+    };
+    (field.to_owned(), e.to_string())
+}
 
 impl PoseSpec {
     /// The transform `x ↦ Rz(yaw) Ry(pitch) Rx(roll) x + t`.
@@ -22,16 +35,65 @@ impl PoseSpec {
 }
 
 impl Scene {
-    /// The robot: preset, DH table or URDF chain; limits (scene overrides in degrees), base
-    /// and tool.
+    /// The robot's joint count: 6 for the preset or a DH table; the movable joints of the chain
+    /// from `base_link` to `tip_link` of `robot.urdf`. This host runs 6 and 7 joints
+    /// ([`SUPPORTED_JOINTS`]); another count is refused, naming the joints found.
     ///
     /// # Errors
-    /// `(field, reason)` when the URDF cannot be turned into a 6-joint chain (the reason names
-    /// the file), or when it leaves a joint without a speed limit that the scene does not give.
+    /// `(field, reason)` when the URDF cannot be read, has no such chain, or a count this host
+    /// does not run.
+    pub fn joint_count(&self) -> Result<usize, (String, String)> {
+        let Some(file) = &self.robot.urdf else {
+            return Ok(6);
+        };
+        let r = &self.robot;
+        let link = |v: &Option<String>| v.clone().unwrap_or_default();
+        match load_robot::<6>(file, &link(&r.base_link), &link(&r.tip_link)) {
+            Ok(_) => Ok(6),
+            Err(e) => match &e.reason {
+                UrdfReason::JointCount { found, .. } if SUPPORTED_JOINTS.contains(found) => {
+                    Ok(*found)
+                }
+                UrdfReason::JointCount {
+                    found,
+                    joints,
+                    base,
+                    tip,
+                    ..
+                } => Err((
+                    "robot.urdf".into(),
+                    format!(
+                        "URDF {}: {found} movable joints from `{base}` to `{tip}` ({}); this \
+                         host runs arms of 6 or 7 joints",
+                        file.display(),
+                        joints.join(", ")
+                    ),
+                )),
+                _ => Err(urdf_error(e)),
+            },
+        }
+    }
+
+    /// The robot of a 6-joint scene ([`Scene::robot_n`] with `N` = 6).
+    ///
+    /// # Errors
+    /// As [`Scene::robot_n`].
     pub fn robot(&self) -> Result<Robot<6>, (String, String)> {
+        self.robot_n::<6>()
+    }
+
+    /// The robot with `N` joints: preset, DH table or URDF chain; limits (scene overrides in
+    /// degrees), base and tool.
+    ///
+    /// # Errors
+    /// `(field, reason)` when the URDF cannot be turned into an `N`-joint chain (the reason
+    /// names the file), when `N` is not 6 for the preset or a DH table, when a per-joint list
+    /// (`joint_min_deg`, …) has another length than `N`, or when it leaves a joint without a
+    /// speed limit that the scene does not give.
+    pub fn robot_n<const N: usize>(&self) -> Result<Robot<N>, (String, String)> {
         let r = &self.robot;
         let mut robot = match &r.urdf {
-            Some(file) => Robot::Serial(self.urdf_chain(file)?),
+            Some(file) => Robot::Serial(self.urdf_chain::<N>(file)?),
             None => {
                 let mut chain = DhChain::rv1a();
                 if let Some(rows) = &r.dh {
@@ -46,9 +108,44 @@ impl Scene {
                 }
                 chain.base = r.base.to_pose();
                 chain.tool = r.tool.to_pose();
-                Robot::Dh(chain)
+                let field = if r.dh.is_some() {
+                    "robot.dh"
+                } else {
+                    "robot.preset"
+                };
+                let wrong = || {
+                    (
+                        field.to_owned(),
+                        format!("a robot of 6 joints, asked for as one of {N}"),
+                    )
+                };
+                Robot::Dh(DhChain {
+                    joints: <[DhJoint; N]>::try_from(&chain.joints[..]).map_err(|_| wrong())?,
+                    limits: <[JointLimit; N]>::try_from(&chain.limits[..]).map_err(|_| wrong())?,
+                    base: chain.base,
+                    tool: chain.tool,
+                })
             }
         };
+        for (field, v) in [
+            ("robot.joint_min_deg", &r.joint_min_deg),
+            ("robot.joint_max_deg", &r.joint_max_deg),
+            ("robot.speed_limit_deg_s", &r.speed_limit_deg_s),
+            ("robot.start_joints_deg", &r.start_joints_deg),
+            ("robot.ik_seed_deg", &r.ik_seed_deg),
+        ] {
+            if let Some(v) = v
+                && v.len() != N
+            {
+                return Err((
+                    field.into(),
+                    format!(
+                        "needs {N} values, one per joint of this robot (got {})",
+                        v.len()
+                    ),
+                ));
+            }
+        }
         let k = std::f64::consts::PI / 180.0;
         for (i, l) in robot.limits_mut().iter_mut().enumerate() {
             if let Some(v) = &r.joint_min_deg {
@@ -72,7 +169,7 @@ impl Scene {
             return Err((
                 "robot.speed_limit_deg_s".into(),
                 format!(
-                    "joint {} has no velocity limit in {}: give the six speed limits [deg/s]",
+                    "joint {} has no velocity limit in {}: give the {N} speed limits [deg/s]",
                     i + 1,
                     r.urdf
                         .as_deref()
@@ -86,23 +183,11 @@ impl Scene {
 
     /// The chain of `robot.urdf` from `base_link` to `tip_link`, placed at `robot.base`, the
     /// needle base at `robot.tool` in the tip link's frame.
-    fn urdf_chain(&self, file: &Path) -> Result<SerialChain<6>, (String, String)> {
+    fn urdf_chain<const N: usize>(&self, file: &Path) -> Result<SerialChain<N>, (String, String)> {
         let r = &self.robot;
         let link = |v: &Option<String>| v.clone().unwrap_or_default();
-        let robot = load_robot::<6>(file, &link(&r.base_link), &link(&r.tip_link)).map_err(|e| {
-            let field = match &e.reason {
-                UrdfReason::MissingLink { role: "base", .. } => "robot.base_link",
-                UrdfReason::MissingLink { .. } | UrdfReason::NoPath { .. } => "robot.tip_link",
-                _ => "robot.urdf",
-            };
-            let mut reason = e.to_string();
-            if let UrdfReason::JointCount { found: 7, .. } = e.reason {
-                reason.push_str(
-                    ": 7-joint robots run in the core's controller, not yet in this host (6 joints)",
-                );
-            }
-            (field.to_owned(), reason)
-        })?;
+        let robot =
+            load_robot::<N>(file, &link(&r.base_link), &link(&r.tip_link)).map_err(urdf_error)?;
         let mut chain = robot.chain;
         chain.base = r.base.to_pose().compose(&chain.base);
         chain.tool = chain.tool.compose(&r.tool.to_pose());
@@ -127,6 +212,7 @@ impl Scene {
             qp_angle_weight: v.qp_angle_weight,
             qp_heading: v.qp_heading,
             aim_ahead: v.aim_ahead,
+            limit_avoidance: v.limit_avoidance,
             jacobian: match v.jacobian {
                 super::JacobianSpec::Solve => JacobianMode::Solve,
                 super::JacobianSpec::Linearized => JacobianMode::Linearized,

@@ -98,6 +98,9 @@ pub(super) fn default_qp_heading() -> bool {
 pub(super) fn default_aim_ahead() -> f64 {
     InverseParams::default().aim_ahead
 }
+pub(super) fn default_limit_avoidance() -> f64 {
+    InverseParams::default().limit_avoidance
+}
 pub(super) fn default_jacobian() -> JacobianSpec {
     JacobianSpec::Hybrid
 }

@@ -3,6 +3,7 @@
 //! reason ([`SceneError`]).
 
 use super::{COMPLEX_TOML, GelSpec, PathError, SIMPLE_TOML, SampledPath, Scene};
+use crate::joints::{WithJoints, with_joints};
 use std::fmt;
 use std::path::Path;
 
@@ -103,8 +104,18 @@ impl Scene {
         // its limits.
         if scene.robot.urdf.is_some() {
             scene
-                .robot()
-                .and_then(|robot| scene.check_start_joints(&robot))
+                .joint_count()
+                .and_then(|n| {
+                    struct Check<'a>(&'a Scene);
+                    impl WithJoints for Check<'_> {
+                        type Output = Result<(), (String, String)>;
+                        fn with<const N: usize>(self) -> Self::Output {
+                            self.0.check_start_joints(&self.0.robot_n::<N>()?)
+                        }
+                    }
+                    // `joint_count` gives only the counts `with_joints` runs.
+                    with_joints(n, Check(&scene)).unwrap_or(Ok(()))
+                })
                 .map_err(|(field, reason)| SceneError {
                     file: file.clone(),
                     field,

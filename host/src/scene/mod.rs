@@ -125,22 +125,27 @@ pub struct RobotSpec {
     /// Needle base B in the flange frame E (`B = E · tool`).
     #[serde(default)]
     pub tool: PoseSpec,
-    /// Lower joint limits [deg] (six values; default: the preset's).
+    /// Lower joint limits [deg] (one value per joint; default: the preset's).
     #[serde(default)]
     pub joint_min_deg: Option<Vec<f64>>,
-    /// Upper joint limits [deg] (six values; default: the preset's).
+    /// Upper joint limits [deg] (one value per joint; default: the preset's).
     #[serde(default)]
     pub joint_max_deg: Option<Vec<f64>>,
-    /// Joint speed limits [deg/s] (six values; default: the preset's).
+    /// Joint speed limits [deg/s] (one value per joint; default: the preset's).
     #[serde(default)]
     pub speed_limit_deg_s: Option<Vec<f64>>,
     /// Control period: time between two steps [s].
     #[serde(default = "default_dt")]
     pub dt: f64,
-    /// Start joints [deg] (six values within the limits); default: the IK of the start pose
+    /// Start joints [deg] (one value per joint, within the limits); default: the IK of the start pose
     /// (tip `path.approach` before the entry point, needle along the entry tangent).
     #[serde(default)]
     pub start_joints_deg: Option<Vec<f64>>,
+    /// Where the IK of the start pose starts [deg] (one value per joint within the limits;
+    /// default: mid-range). On a redundant arm it picks the arm's posture among the many that
+    /// put the needle at its start (elbow up or down, which way the spare joint turns).
+    #[serde(default)]
+    pub ik_seed_deg: Option<Vec<f64>>,
 }
 
 impl Default for RobotSpec {
@@ -158,6 +163,7 @@ impl Default for RobotSpec {
             speed_limit_deg_s: None,
             dt: default_dt(),
             start_joints_deg: None,
+            ik_seed_deg: None,
         }
     }
 }
@@ -412,6 +418,11 @@ pub struct InverseSpec {
     /// Look-ahead of the tip's heading once inserted [mm] (0: the path's tangent alone).
     #[serde(default = "default_aim_ahead")]
     pub aim_ahead: f64,
+    /// Gain of the `"qp"` update's third stage for arms of more than 6 joints: each joint is
+    /// moved towards the middle of its range in the null space of the task (0: off; no effect
+    /// on 6-joint arms) [-].
+    #[serde(default = "default_limit_avoidance")]
+    pub limit_avoidance: f64,
 }
 
 /// How the inverse controller chooses the joint update.
@@ -451,6 +462,7 @@ impl Default for InverseSpec {
             qp_angle_weight: default_qp_angle_weight(),
             qp_heading: default_qp_heading(),
             aim_ahead: default_aim_ahead(),
+            limit_avoidance: default_limit_avoidance(),
         }
     }
 }

@@ -83,12 +83,15 @@ fn density(field: &str, v: f64) -> Check {
     within(field, v, 1e-12, 2e-7, "[t/mm³]")
 }
 
-fn six(field: &str, v: &Option<Vec<f64>>) -> Check {
+/// A per-joint list: one finite value per joint, 6 (or 7 for a URDF arm of 7 joints; the exact
+/// count is checked against the robot, `Scene::robot`).
+fn per_joint(field: &str, v: &Option<Vec<f64>>, urdf: bool) -> Check {
     if let Some(v) = v {
-        if v.len() != 6 {
+        if !(v.len() == 6 || (urdf && v.len() == 7)) {
+            let counts = if urdf { "6 or 7" } else { "6" };
             return fail(
                 field,
-                format!("needs 6 values, one per joint (got {})", v.len()),
+                format!("needs {counts} values, one per joint (got {})", v.len()),
             );
         }
         for (i, x) in v.iter().enumerate() {
@@ -180,11 +183,12 @@ impl Scene {
 
     fn validate_joints(&self) -> Check {
         let r = &self.robot;
-        six("robot.joint_min_deg", &r.joint_min_deg)?;
-        six("robot.joint_max_deg", &r.joint_max_deg)?;
-        six("robot.speed_limit_deg_s", &r.speed_limit_deg_s)?;
+        let urdf = r.urdf.is_some();
+        per_joint("robot.joint_min_deg", &r.joint_min_deg, urdf)?;
+        per_joint("robot.joint_max_deg", &r.joint_max_deg, urdf)?;
+        per_joint("robot.speed_limit_deg_s", &r.speed_limit_deg_s, urdf)?;
         if let (Some(lo), Some(hi)) = (&r.joint_min_deg, &r.joint_max_deg)
-            && let Some(i) = (0..6).find(|&i| lo[i] >= hi[i])
+            && let Some(i) = (0..lo.len().min(hi.len())).find(|&i| lo[i] >= hi[i])
         {
             return fail(
                 &format!("robot.joint_max_deg[{i}]"),
@@ -199,22 +203,28 @@ impl Scene {
                 "must be > 0 [deg/s]",
             );
         }
-        six("robot.start_joints_deg", &r.start_joints_deg)?;
+        per_joint("robot.start_joints_deg", &r.start_joints_deg, urdf)?;
+        per_joint("robot.ik_seed_deg", &r.ik_seed_deg, urdf)?;
         // A URDF's limits are checked when the file is read (`Scene::load`).
-        if r.urdf.is_none() {
-            self.check_start_joints(&self.robot()?)?;
+        if !urdf {
+            self.check_start_joints(&self.robot_n::<6>()?)?;
         }
         Ok(())
     }
 
-    /// The start joints, when given, within the limits of `robot`.
-    pub(crate) fn check_start_joints(&self, robot: &Robot<6>) -> Check {
-        if let Some(q) = &self.robot.start_joints_deg {
+    /// The start joints and the IK seed, when given, within the limits of `robot`.
+    pub(crate) fn check_start_joints<const N: usize>(&self, robot: &Robot<N>) -> Check {
+        let r = &self.robot;
+        for (field, q) in [
+            ("robot.start_joints_deg", &r.start_joints_deg),
+            ("robot.ik_seed_deg", &r.ik_seed_deg),
+        ] {
+            let Some(q) = q else { continue };
             for (i, (v, l)) in q.iter().zip(robot.limits()).enumerate() {
                 let (lo, hi) = (l.lower.to_degrees(), l.upper.to_degrees());
                 if !(*v >= lo && *v <= hi) {
                     return fail(
-                        &format!("robot.start_joints_deg[{i}]"),
+                        &format!("{field}[{i}]"),
                         format!("{v} is outside the joint limits [{lo}, {hi}] [deg]"),
                     );
                 }
@@ -413,7 +423,14 @@ impl Scene {
         non_negative("inverse.tolerance", v.tolerance, "[mm²]")?;
         positive("inverse.max_base_step", v.max_base_step, "[mm]")?;
         non_negative("inverse.clearance_margin", v.clearance_margin, "[mm]")?;
-        non_negative("inverse.qp_angle_weight", v.qp_angle_weight, "[mm/rad]")
+        non_negative("inverse.qp_angle_weight", v.qp_angle_weight, "[mm/rad]")?;
+        within(
+            "inverse.limit_avoidance",
+            v.limit_avoidance,
+            0.0,
+            10.0,
+            "[-]",
+        )
     }
 
     fn validate_solver(&self) -> Check {

@@ -46,8 +46,8 @@ pub fn add_correction(
 ///
 /// # Errors
 /// [`SimError::NonFinite`] when a position is not finite afterwards.
-pub fn apply(
-    world: &mut World,
+pub fn apply<const N: usize>(
+    world: &mut World<N>,
     set: &ConstraintSet,
     lambda: &[f64],
     needle_dx: &mut [f64],

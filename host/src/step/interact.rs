@@ -63,8 +63,8 @@ pub fn keep_columns(set: &mut ConstraintSet, columns: &mut Vec<(usize, PointColu
 ///
 /// # Errors
 /// [`SimError::PunctureOffGel`] when the tip punctures at a point that is not on the gel.
-pub fn update(
-    world: &mut World,
+pub fn update<const N: usize>(
+    world: &mut World<N>,
     contact_force: f64,
     inter: &Interaction,
 ) -> Result<bool, SimError> {
@@ -81,7 +81,7 @@ pub fn update(
 }
 
 /// The tip punctured the surface: the contact gives way to a sliding point at the entry.
-fn puncture(world: &mut World) -> Result<(), SimError> {
+fn puncture<const N: usize>(world: &mut World<N>) -> Result<(), SimError> {
     let tip = world.tip();
     let (nodes, tets) = (world.gel.positions(), &world.gel.mesh().tets);
     let at = TetLocator::new(nodes, tets)
@@ -94,7 +94,7 @@ fn puncture(world: &mut World) -> Result<(), SimError> {
     Ok(())
 }
 
-fn add_sliding(world: &mut World, at: Embedded) {
+fn add_sliding<const N: usize>(world: &mut World<N>, at: Embedded) {
     world.sliding.push(SlidingPoint {
         id: world.next_sliding_id,
         at,
@@ -104,7 +104,7 @@ fn add_sliding(world: &mut World, at: Embedded) {
 
 /// New sliding point every `max(d_n, h)` of advance; release the ones the tip has been
 /// withdrawn past.
-fn update_sliding_points(world: &mut World, inter: &Interaction) {
+fn update_sliding_points<const N: usize>(world: &mut World<N>, inter: &Interaction) {
     let nodes = world.needle.positions();
     let n = nodes.len();
     let tip = nodes[n - 1];

@@ -38,11 +38,13 @@ pub use params::{Insertion, Interaction, StepParams, TargetMotion};
 use crate::compliance::PointColumns;
 use crate::constraints::{ConstraintSet, GroupRole};
 use crate::error::{Body, CommandMismatch, NonFiniteAt, SimError};
+use crate::joints::{Joints, MAX_JOINTS, normalised_limit_margin};
 use crate::proximity::Embedded;
 use crate::world::World;
 use nalgebra::Vector3;
 use needle_bridge::Transport;
-use needle_core::payload::{Command, ComplianceFrame, JOINTS, SolverReport, VERSION};
+use needle_core::kinematics::Kinematics as _;
+use needle_core::payload::{Command, ComplianceFrame, SolverReport, VERSION};
 use std::time::Instant;
 
 /// Row capacity of the frames a pipeline builds: 6 base rows + 3 contact rows + 3 rows for each
@@ -105,12 +107,20 @@ pub struct StepReport {
     pub contact_force: f64,
     /// Norms of λ per role: base, contact, sliding [N or N·mm].
     pub lambda_norms: [f64; 3],
-    /// The core's report.
-    pub solver: SolverReport,
+    /// The core's report; its `delta_q` holds the robot's joints first (`q.len()` of them), zero
+    /// beyond.
+    pub solver: SolverReport<MAX_JOINTS>,
     /// Largest constraint violation after the step over the non-base bilateral rows [mm].
     pub residual: f64,
-    /// Joints after the step [rad].
-    pub q: [f64; JOINTS],
+    /// Joints after the step [rad], one per joint of the robot.
+    pub q: Joints,
+    /// The smallest distance of any joint to one of its position limits after the step, as a
+    /// fraction of that joint's half range (1: every joint mid-range, 0: one at a limit;
+    /// `+∞` when no joint has finite limits): what keeps a redundant arm's spare joint away from
+    /// its limits ([`needle_core::inverse::InverseParams::limit_avoidance`]) shows here.
+    pub limit_margin: f64,
+    /// The joint of [`Self::limit_margin`] (0-based).
+    pub limit_joint: usize,
     /// Stage times [ms].
     pub times: StageTimes,
     /// The force of each row group on the needle, and where it acts (after the step).
@@ -130,17 +140,17 @@ pub struct FreePositions {
 
 impl FreePositions {
     /// The free-motion position of a gel point [mm].
-    pub fn gel_point(&self, world: &World, e: &Embedded) -> Vector3<f64> {
+    pub fn gel_point<const N: usize>(&self, world: &World<N>, e: &Embedded) -> Vector3<f64> {
         e.position(&self.gel, &world.gel.mesh().tets)
     }
 }
 
 /// The scratch of a step, sized once for a world: the frame and the command, the rows, the
 /// free-motion and correction vectors, and the gel compliance columns of the sliding points
-/// (valid while the gel's factor is reused).
-pub struct Pipeline {
-    frame: Box<ComplianceFrame<ROWS>>,
-    command: Box<Command<ROWS>>,
+/// (valid while the gel's factor is reused). `N`: the robot's joints.
+pub struct Pipeline<const N: usize = 6> {
+    frame: Box<ComplianceFrame<ROWS, N>>,
+    command: Box<Command<ROWS, N>>,
     set: ConstraintSet,
     gel_dx: Vec<f64>,
     needle_dx: Vec<f64>,
@@ -159,9 +169,9 @@ fn lap(t: &mut Instant) -> f64 {
     ms
 }
 
-impl Pipeline {
+impl<const N: usize> Pipeline<N> {
     /// Scratch for `world`'s bodies.
-    pub fn new(world: &World) -> Self {
+    pub fn new(world: &World<N>) -> Self {
         Self {
             frame: ComplianceFrame::new_boxed(),
             command: Command::new_boxed(),
@@ -204,9 +214,9 @@ impl Pipeline {
     /// ```
     pub fn step(
         &mut self,
-        world: &mut World,
+        world: &mut World<N>,
         params: &StepParams,
-        transport: &mut dyn Transport<ROWS>,
+        transport: &mut dyn Transport<ROWS, N>,
     ) -> Result<StepReport, SimError> {
         let c = params
             .insertion
@@ -275,7 +285,7 @@ impl Pipeline {
 
     /// Stage 1: `Δx_free` of both bodies, the free positions, and the cached gel columns dropped
     /// when the gel's factor was renewed.
-    fn free_motion(&mut self, world: &mut World) -> Result<(), SimError> {
+    fn free_motion(&mut self, world: &mut World<N>) -> Result<(), SimError> {
         let gel_dx = world.gel.free_motion_unloaded();
         self.gel_dx
             .copy_from_slice(gel_dx.map_err(SimError::in_free_motion(Body::Gel))?);
@@ -310,7 +320,7 @@ impl Pipeline {
     /// kept), then `W`, `δ_free`, `C`, `o_free` and the header of the frame.
     fn compliance(
         &mut self,
-        world: &mut World,
+        world: &mut World<N>,
         c: f64,
         params: &StepParams,
     ) -> Result<(), SimError> {
@@ -342,13 +352,14 @@ impl Pipeline {
     /// The report of a finished step.
     fn report(
         &self,
-        world: &World,
+        world: &World<N>,
         c: f64,
         forces: interact::Forces,
         punctured_now: bool,
     ) -> StepReport {
         let tip = world.tip();
         let target = world.target(c);
+        let (limit_margin, limit_joint) = normalised_limit_margin(&world.q, world.robot.limits());
         let (group_forces, needle_node_forces) = correct::constraint_forces(
             &self.set,
             &self.command.lambda[..self.set.rows()],
@@ -367,9 +378,11 @@ impl Pipeline {
             punctured_now,
             contact_force: forces.contact,
             lambda_norms: forces.norms,
-            solver: self.command.report,
+            solver: widen_report(&self.command.report),
             residual: world.sliding_residual(),
-            q: world.q,
+            q: Joints::new(&world.q),
+            limit_margin,
+            limit_joint,
             times: self.times,
             forces: group_forces,
             needle_node_forces,
@@ -377,12 +390,12 @@ impl Pipeline {
     }
 
     /// The last frame handed to the core (diagnostics, transports).
-    pub fn frame(&self) -> &ComplianceFrame<ROWS> {
+    pub fn frame(&self) -> &ComplianceFrame<ROWS, N> {
         &self.frame
     }
 
     /// The last command received from the core.
-    pub fn command(&self) -> &Command<ROWS> {
+    pub fn command(&self) -> &Command<ROWS, N> {
         &self.command
     }
 
@@ -394,8 +407,29 @@ impl Pipeline {
     }
 }
 
+/// The core's report of an `N`-joint step with room for [`MAX_JOINTS`] joints.
+fn widen_report<const N: usize>(r: &SolverReport<N>) -> SolverReport<MAX_JOINTS> {
+    let mut delta_q = [0.0; MAX_JOINTS];
+    for (d, v) in delta_q.iter_mut().zip(&r.delta_q) {
+        *d = *v;
+    }
+    SolverReport {
+        iterations: r.iterations,
+        solves: r.solves,
+        flags: r.flags,
+        final_iterations: r.final_iterations,
+        final_residual: r.final_residual,
+        objective: r.objective,
+        objective_after: r.objective_after,
+        delta_q,
+    }
+}
+
 /// Checks that `cmd` answers `frame`: version, sequence, row count, finite values.
-fn check_command(frame: &ComplianceFrame<ROWS>, cmd: &Command<ROWS>) -> Result<(), SimError> {
+fn check_command<const N: usize>(
+    frame: &ComplianceFrame<ROWS, N>,
+    cmd: &Command<ROWS, N>,
+) -> Result<(), SimError> {
     let why = if cmd.version != VERSION {
         Some(CommandMismatch::Version)
     } else if cmd.frame_sequence != frame.sequence {

@@ -17,7 +17,11 @@ const TANGENT_STEP: f64 = 1.0;
 
 /// The five observations of the frame (tip, tip direction, target, target tangent, entry) for
 /// the target at arc length `c`.
-pub fn observations(world: &World, free: &FreePositions, c: f64) -> [Observation; 5] {
+pub fn observations<const N: usize>(
+    world: &World<N>,
+    free: &FreePositions,
+    c: f64,
+) -> [Observation; 5] {
     let nodes = world.needle.positions();
     let n_last = nodes.len() - 1;
     let eye = Matrix3::identity();
@@ -52,7 +56,10 @@ pub fn observations(world: &World, free: &FreePositions, c: f64) -> [Observation
 /// nearest to its centre at the start of the step (the needle within `depth` of the tip, as
 /// [`World::clearances`] measures) and the centre, observed after the free motion; the `NCLEAR`
 /// nearest obstacles when there are more. None before puncture (nothing is inserted).
-pub fn clearance_observations(world: &World, free: &FreePositions) -> Vec<ClearanceObservation> {
+pub fn clearance_observations<const N: usize>(
+    world: &World<N>,
+    free: &FreePositions,
+) -> Vec<ClearanceObservation> {
     let depth = world.depth();
     if !world.punctured || world.obstacles.is_empty() || depth <= 0.0 {
         return Vec::new();
@@ -128,7 +135,11 @@ fn gel_observation(map: PointMap, free: Vector3<f64>) -> Observation {
 /// The target point and tangent: embedded in the gel (the tangent as the difference quotient
 /// over [`TANGENT_STEP`]) once both are inside it, else the rest path's, carried by the support's
 /// displacement (fixed in the world without a support motion).
-fn target_observations(world: &World, free: &FreePositions, c: f64) -> (Observation, Observation) {
+fn target_observations<const N: usize>(
+    world: &World<N>,
+    free: &FreePositions,
+    c: f64,
+) -> (Observation, Observation) {
     let fixed = PointMap::weighted([]);
     match (
         world.target_embedding(c),
@@ -172,9 +183,9 @@ fn exp_so3(theta: &Vector3<f64>) -> Matrix3<f64> {
 ///
 /// # Errors
 /// The frame's [`ValidationError`].
-pub fn fill_header(
-    f: &mut ComplianceFrame<ROWS>,
-    world: &World,
+pub fn fill_header<const N: usize>(
+    f: &mut ComplianceFrame<ROWS, N>,
+    world: &World<N>,
     needle_dx: &[f64],
     free: &FreePositions,
     dt: f64,

@@ -18,9 +18,9 @@ const CONTACT_DISTANCE: f64 = 5.0;
 
 /// Rebuilds `set` for `world`: χ, then ψ (taking the cached gel columns of each sliding point
 /// out of `columns`, which is then emptied), then φ.
-pub fn build(
+pub fn build<const N: usize>(
     set: &mut ConstraintSet,
-    world: &World,
+    world: &World<N>,
     free: &FreePositions,
     inter: &Interaction,
     columns: &mut Vec<(usize, PointColumns)>,
@@ -43,7 +43,7 @@ pub fn build(
 }
 
 /// The gel map of an embedded point: its tetrahedron's free nodes with their weights.
-pub fn gel_map(world: &World, e: &Embedded) -> PointMap {
+pub fn gel_map<const N: usize>(world: &World<N>, e: &Embedded) -> PointMap {
     let t = world.gel.mesh().tets[e.tet];
     PointMap::weighted((0..4).map(|k| (world.gel.node_dof(t[k]), e.weights[k])))
 }
@@ -72,9 +72,9 @@ fn base_rows(set: &mut ConstraintSet) {
 
 /// ψ: the shaft through a sliding point — two lateral rows across the shaft at its closest
 /// point, and an axial friction row when the shaft has friction or resistance.
-fn sliding_rows(
+fn sliding_rows<const N: usize>(
     set: &mut ConstraintSet,
-    world: &World,
+    world: &World<N>,
     free: &FreePositions,
     inter: &Interaction,
     s: &SlidingPoint,
@@ -123,7 +123,12 @@ fn sliding_rows(
 
 /// φ: the tip on the gel surface (before puncture) — a unilateral normal row, two Coulomb
 /// friction rows — when the tip is within [`CONTACT_DISTANCE`] of the surface.
-fn contact_rows(set: &mut ConstraintSet, world: &World, free: &FreePositions, inter: &Interaction) {
+fn contact_rows<const N: usize>(
+    set: &mut ConstraintSet,
+    world: &World<N>,
+    free: &FreePositions,
+    inter: &Interaction,
+) {
     let gel_nodes = world.gel.positions();
     let projector = SurfaceProjector::new(gel_nodes, &world.surface);
     let n_last = world.needle.node_count() - 1;
