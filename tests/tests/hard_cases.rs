@@ -309,7 +309,7 @@ fn case3_wrist_singularity_start_steps_stay_within_the_speed_limits() {
                 x.step
             );
         }
-        prev = x.q;
+        prev.copy_from_slice(&x.q);
     }
     let near = r
         .reports

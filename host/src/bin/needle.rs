@@ -384,6 +384,20 @@ fn print_text(s: &RunSummary) {
             s.pcg_iterations_mean, s.pcg_iterations_max, s.pcg_fallbacks
         );
     }
+    if let Some(j) = s.limit_margin_joint
+        && s.limit_margin_min.is_finite()
+    {
+        println!(
+            "joints ({}): closest to a limit joint {j}, at {:.1} % of its half range from it{}",
+            s.joints,
+            100.0 * s.limit_margin_min,
+            if s.joints > 6 {
+                " (the redundant joint kept away from the limits in the null space)"
+            } else {
+                ""
+            }
+        );
+    }
     if s.unreachable_steps + s.limit_steps + s.shortened_steps > 0 {
         println!(
             "target unreachable in {} steps, a joint at its limit in {} steps, \

@@ -128,6 +128,16 @@ pub struct RunSummary {
     pub unreachable_steps: usize,
     /// Steps in which a joint stopped at its limit.
     pub limit_steps: usize,
+    /// Joints of the robot.
+    pub joints: usize,
+    /// The smallest joint-limit margin of the run: over every step, the smallest distance of a
+    /// joint to one of its position limits as a fraction of that joint's half range (1:
+    /// mid-range, 0: at a limit; [`StepReport::limit_margin`]). `null` in JSON without steps
+    /// or without finite limits.
+    pub limit_margin_min: f64,
+    /// The joint of [`Self::limit_margin_min`], counted from 1 as in `steps.csv` (`q1_rad` …);
+    /// none without steps.
+    pub limit_margin_joint: Option<usize>,
     /// Steps whose planned joint update the constraint solve did not confirm, so that the
     /// controller shortened it or held the joints (`StatusFlags::BACKTRACKED`).
     pub shortened_steps: usize,
@@ -348,6 +358,15 @@ impl Statistics {
             max_inverted_elements: self.max_inverted,
             unreachable_steps: count_flag(reports, StatusFlags::TARGET_UNREACHABLE),
             limit_steps: count_flag(reports, StatusFlags::SATURATED_LIMIT),
+            joints: N,
+            limit_margin_min: reports
+                .iter()
+                .map(|r| r.limit_margin)
+                .fold(f64::INFINITY, f64::min),
+            limit_margin_joint: reports
+                .iter()
+                .min_by(|a, b| a.limit_margin.total_cmp(&b.limit_margin))
+                .map(|r| r.limit_joint + 1),
             shortened_steps: count_flag(reports, StatusFlags::BACKTRACKED),
             background_factorizations: background.0,
             immediate_factorizations: background.1,
