@@ -687,11 +687,12 @@ impl RunResult {
     fn targets<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
         points(py, self.reports.iter().map(|r| &r.target))
     }
-    /// Joints per step, shape (steps, 6) [rad].
+    /// Joints per step, shape (steps, joints) [rad]: 6 joints, or 7 for a 7-joint arm.
     #[getter]
     fn joints<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
+        let n = self.reports.first().map_or(6, |r| r.q.len());
         let flat = self.reports.iter().flat_map(|r| r.q).collect();
-        rows(py, flat, self.reports.len(), 6)
+        rows(py, flat, self.reports.len(), n)
     }
     /// Wall time of each stage per step [ms]: a dict of arrays of shape (steps,), keys `fm`,
     /// `cd`, `cc`, `sc`, `corr`, `interact`, `total` (see `StepReport.times`).
