@@ -174,17 +174,22 @@ pub struct Observation {
     pub free: Vector3<f64>,
 }
 
-/// An obstacle seen by the controller: the nearest point of the inserted needle, the obstacle's
-/// centre (a gel point) and its radius [mm].
+/// An obstacle seen by the controller: the nearest point `p` of the inserted needle, the
+/// obstacle's point `s` it is measured to, and the clearance linearised at the start of the
+/// step, `d ≈ clearance + nᵀ ((p − s) − current)`.
 #[derive(Clone, Debug)]
 pub struct ClearanceObservation {
     /// The needle point nearest to the obstacle (position observation).
     pub needle: Observation,
-    /// The obstacle's centre, embedded in the gel (position observation).
-    pub centre: Observation,
-    /// The obstacle's radius [mm].
-    pub radius: f64,
-    /// `p − c` at the start of the step (before the free motion), where the distance is
+    /// The obstacle's point as a sum of gel observations: a sphere's centre (one), a mesh
+    /// obstacle's closest surface point (its triangle's three vertices, each observation's `a`
+    /// its barycentric weight times the identity).
+    pub obstacle: Vec<Observation>,
+    /// The clearance at the start of the step [mm] (a sphere: `|p − s| − r`).
+    pub clearance: f64,
+    /// Unit vector along which the clearance grows with `p − s` (a sphere: `(p − s)/|p − s|`).
+    pub normal: Vector3<f64>,
+    /// `p − s` at the start of the step (before the free motion), where the distance is
     /// linearised [mm].
     pub current: Vector3<f64>,
 }
@@ -304,11 +309,13 @@ impl ConstraintSet {
     }
 
     /// Writes the frame's obstacle clearances (call after [`Self::fill_frame`]): for each
-    /// [`ClearanceObservation`] (at most `NCLEAR`), the distance `|p − c| − r` of the needle point
-    /// `p` to the obstacle centre `c` linearised at the start of the step (`p₀ − c₀`, where the
-    /// step ends up: the needle moves little per step), `n = (p₀ − c₀)/|p₀ − c₀|`:
-    /// `d_free = |p₀ − c₀| − r + nᵀ ((p_free − c_free) − (p₀ − c₀))` and
-    /// `clearance_c = nᵀ (C_p − C_c)`. (Linearised at the free motion instead, the rows fail
+    /// [`ClearanceObservation`] (at most `NCLEAR`), the clearance linearised at the start of the
+    /// step (`p₀ − s₀`, where the step ends up: the needle moves little per step) along its
+    /// normal `n` — for a sphere the distance `|p − c| − r` of the needle point `p` to the centre
+    /// `c`, `n = (p₀ − c₀)/|p₀ − c₀|`; for a mesh the signed distance to the closest surface
+    /// point `s`, `n` along the closest pair:
+    /// `d_free = d₀ + nᵀ ((p_free − s_free) − (p₀ − s₀))` and
+    /// `clearance_c = nᵀ (C_p − C_s)`. (Linearised at the free motion instead, the rows fail
     /// where the unconstrained needle's free motion carries `p` through the obstacle: `n` is
     /// then meaningless, and the prediction was 4 mm off on `obstacles_tight`.)
     pub fn fill_clearances<const M: usize, const N: usize>(
@@ -322,18 +329,18 @@ impl ConstraintSet {
         frame.clearance_count = count as u32;
         frame.reserved = 0;
         for (k, cl) in clearances.iter().take(count).enumerate() {
-            let dist = cl.current.norm();
-            let n = if dist > 0.0 {
-                cl.current / dist
-            } else {
-                Vector3::zeros()
-            };
-            let free = cl.needle.free - cl.centre.free;
-            frame.clearance_free[k] = dist - cl.radius + n.dot(&(free - cl.current));
+            let n = cl.normal;
+            let mut free = cl.needle.free;
+            for o in &cl.obstacle {
+                free -= o.free;
+            }
+            frame.clearance_free[k] = cl.clearance + n.dot(&(free - cl.current));
             let row = &mut frame.clearance_c[k];
             row[..m].fill(0.0);
             self.add_observation_rows(&cl.needle, &starts, |r, j, v| row[j] += n[r] * v);
-            self.add_observation_rows(&cl.centre, &starts, |r, j, v| row[j] -= n[r] * v);
+            for o in &cl.obstacle {
+                self.add_observation_rows(o, &starts, |r, j, v| row[j] -= n[r] * v);
+            }
         }
         for k in count..NCLEAR {
             frame.clearance_free[k] = 0.0;

@@ -103,6 +103,29 @@ pub enum SetupError {
         /// Its centre [mm].
         center: Vector3<f64>,
     },
+    /// A vertex of an obstacle's surface mesh is not inside the gel.
+    #[error(
+        "obstacles[{index}].mesh: vertex {vertex} at {} (after `scale` and `translation`) is not inside the gel: a mesh obstacle must lie wholly in the gel, each vertex embedded in an element",
+        mm(point)
+    )]
+    ObstacleVertexOutside {
+        /// Index in the scene's list.
+        index: usize,
+        /// Vertex of the surface (duplicates merged).
+        vertex: usize,
+        /// Its rest position [mm].
+        point: Vector3<f64>,
+    },
+    /// An obstacle's surface mesh file cannot be used.
+    #[error("obstacles[{index}].mesh: {}: {reason}", file.display())]
+    ObstacleMesh {
+        /// Index in the scene's list.
+        index: usize,
+        /// The file.
+        file: PathBuf,
+        /// Why.
+        reason: String,
+    },
     /// An FE model could not be built.
     /// The scene's plan cannot work: a path outside the gel or into its fixed part, an
     /// obstacle on the path, a needle too short for the insertion, a mesh in the wrong unit.

@@ -16,6 +16,7 @@ pub mod joints;
 pub mod linalg;
 pub mod logs;
 pub mod mesh;
+pub mod obstacle_mesh;
 pub mod open_loop;
 pub mod output;
 pub mod plan_check;

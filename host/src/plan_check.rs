@@ -6,8 +6,9 @@
 #![allow(rustdoc::broken_intra_doc_links)]
 
 use crate::error::{SetupError, mm};
+use crate::proximity::ClosedSurface;
 use crate::scene::Scene;
-use crate::world::World;
+use crate::world::{Obstacle, World};
 use nalgebra::Vector3;
 
 fn refuse(field: &str, reason: String) -> SetupError {
@@ -74,25 +75,52 @@ fn distance_to_polyline(points: &[Vector3<f64>], c: &Vector3<f64>) -> f64 {
         .fold(f64::INFINITY, f64::min)
 }
 
-/// No obstacle on the path: the path's centre line must pass outside every sphere (the
-/// controller keeps the needle on the path, so a path through an obstacle plans a hit).
+/// No obstacle on the path: the path's centre line must pass outside every sphere and every
+/// mesh obstacle's closed surface (the controller keeps the needle on the path, so a path
+/// through an obstacle plans a hit).
 fn obstacles<const N: usize>(scene: &Scene, world: &World<N>) -> Result<(), SetupError> {
-    for (k, o) in scene.obstacles.iter().enumerate() {
-        let c = Vector3::from(o.center);
-        let d = distance_to_polyline(&world.path.points, &c);
-        if d < o.radius {
-            let name = if o.name.is_empty() {
-                String::new()
-            } else {
-                format!(" `{}`", o.name)
-            };
-            return Err(refuse(
-                &format!("obstacles[{k}]"),
-                format!(
-                    "obstacle{name} lies on the path: the path passes {d:.2} mm from its centre, inside its radius of {} mm",
-                    o.radius
-                ),
-            ));
+    for (k, (o, w)) in scene.obstacles.iter().zip(&world.obstacles).enumerate() {
+        let name = if o.name.is_empty() {
+            String::new()
+        } else {
+            format!(" `{}`", o.name)
+        };
+        match w {
+            Obstacle::Sphere { .. } => {
+                let (Some(center), Some(radius)) = (o.center, o.radius) else {
+                    continue;
+                };
+                let c = Vector3::from(center);
+                let d = distance_to_polyline(&world.path.points, &c);
+                if d < radius {
+                    return Err(refuse(
+                        &format!("obstacles[{k}]"),
+                        format!(
+                            "obstacle{name} lies on the path: the path passes {d:.2} mm from its centre, inside its radius of {radius} mm"
+                        ),
+                    ));
+                }
+            }
+            Obstacle::Mesh {
+                vertices,
+                triangles,
+            } => {
+                let rest = &world.gel.mesh().nodes;
+                let tets = &world.gel.mesh().tets;
+                let v: Vec<_> = vertices.iter().map(|e| e.position(rest, tets)).collect();
+                let segments: Vec<_> = world.path.points.windows(2).map(|s| (s[0], s[1])).collect();
+                let c = ClosedSurface::new(&v, triangles).and_then(|s| s.clearance(&segments));
+                if let Some(c) = c.filter(|c| c.value < 0.0) {
+                    return Err(refuse(
+                        &format!("obstacles[{k}]"),
+                        format!(
+                            "obstacle{name} lies on the path: the path passes inside its surface, {:.2} mm deep at {}",
+                            -c.value,
+                            mm(&c.point)
+                        ),
+                    ));
+                }
+            }
         }
     }
     Ok(())

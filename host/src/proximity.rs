@@ -5,16 +5,18 @@
 //!   barycentric coordinates — to embed the path and the obstacles in the rest mesh once, and to
 //!   drop a sliding point where the tip has cut;
 //! - [`SurfaceProjector`]: the closest point of the deformed gel surface to the needle tip, with
-//!   the triangle, its barycentric coordinates and the outward normal — the tip contact φ before puncture.
+//!   the triangle, its barycentric coordinates and the outward normal — the tip contact φ before puncture;
+//! - [`ClosedSurface`]: the signed clearance of a polyline (the inserted needle's centre line) to
+//!   a closed triangulated surface (an obstacle given as a mesh), with its closest pair.
 //!
 //! parry 0.31 speaks glam (`glamx`); conversion to nalgebra happens here and nowhere else.
 
 use nalgebra::Vector3;
 use parry3d_f64::bounding_volume::Aabb;
-use parry3d_f64::math::Vector as GVec;
+use parry3d_f64::math::{Pose, Vector as GVec};
 use parry3d_f64::partitioning::{Bvh, BvhBuildStrategy};
-use parry3d_f64::query::PointQuery;
-use parry3d_f64::shape::Triangle;
+use parry3d_f64::query::{ClosestPoints, PointQuery, PointQueryWithLocation, closest_points};
+use parry3d_f64::shape::{Segment, TriMesh, TriMeshFlags, Triangle};
 
 #[inline]
 fn to_g(v: &Vector3<f64>) -> GVec {
@@ -219,6 +221,162 @@ impl SurfaceProjector {
     }
 }
 
+/// The closest pair of a polyline and a closed surface, and their signed distance.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SurfaceClearance {
+    /// Signed distance [mm]: the smallest distance of the polyline to the surface when it lies
+    /// wholly outside, else minus the depth of its deepest point inside.
+    pub value: f64,
+    /// Segment `[x_k, x_{k+1}]` of the polyline holding the closest point.
+    pub segment: usize,
+    /// Its fraction along the segment, in [0, 1].
+    pub fraction: f64,
+    /// Triangle of the surface holding the closest surface point.
+    pub triangle: usize,
+    /// Barycentric weights of that point in the triangle.
+    pub weights: [f64; 3],
+    /// The polyline's point [mm].
+    pub point: Vector3<f64>,
+    /// The surface's point [mm].
+    pub surface_point: Vector3<f64>,
+    /// Unit vector along which `value` grows when the polyline's point moves away from the
+    /// surface's: `value = normalᵀ (point − surface_point)`.
+    pub normal: Vector3<f64>,
+}
+
+/// A closed, outward-oriented triangulated surface at given vertex positions (an obstacle);
+/// inside and outside are told by the angle-weighted pseudo-normals.
+pub struct ClosedSurface {
+    mesh: TriMesh,
+}
+
+/// Samples per segment of the search for the deepest point of a polyline inside a surface.
+const DEPTH_SAMPLES: usize = 32;
+
+impl ClosedSurface {
+    /// The surface at `vertices`; `None` for a surface parry refuses (no triangle).
+    pub fn new(vertices: &[Vector3<f64>], triangles: &[[usize; 3]]) -> Option<Self> {
+        let v = vertices.iter().map(to_g).collect();
+        let t = triangles
+            .iter()
+            .map(|t| t.map(|i| u32::try_from(i).unwrap_or(u32::MAX)))
+            .collect();
+        TriMesh::with_flags(v, t, TriMeshFlags::ORIENTED)
+            .ok()
+            .map(|mesh| Self { mesh })
+    }
+
+    /// Signed distance of `p` to the surface (negative inside), the closest triangle and the
+    /// closest point's barycentric weights in it.
+    pub fn signed_distance(&self, p: &Vector3<f64>) -> (f64, usize, [f64; 3], Vector3<f64>) {
+        let (proj, (tri, loc)) = self
+            .mesh
+            .project_local_point_and_get_location(to_g(p), false);
+        let s = from_g(proj.point);
+        let d = (p - s).norm();
+        let w = loc.barycentric_coordinates().unwrap_or([1.0, 0.0, 0.0]);
+        (if proj.is_inside { -d } else { d }, tri as usize, w, s)
+    }
+
+    /// Whether `p` lies inside the surface.
+    pub fn contains(&self, p: &Vector3<f64>) -> bool {
+        self.signed_distance(p).0 < 0.0
+    }
+
+    /// The signed clearance of the polyline made of `segments` (each `(a, b)`) to the surface:
+    /// for a segment wholly outside, parry's closest points of the segment and the triangle
+    /// mesh (exact); for a segment that crosses the surface or lies inside, its deepest point,
+    /// found by sampling the segment and refining the best sample by golden-section search.
+    /// `None` without segments.
+    pub fn clearance(&self, segments: &[(Vector3<f64>, Vector3<f64>)]) -> Option<SurfaceClearance> {
+        let mut best: Option<SurfaceClearance> = None;
+        for (k, (a, b)) in segments.iter().enumerate() {
+            let c = self.segment_clearance(k, a, b);
+            if best.as_ref().is_none_or(|x| c.value < x.value) {
+                best = Some(c);
+            }
+        }
+        best
+    }
+
+    fn pair(
+        &self,
+        k: usize,
+        a: &Vector3<f64>,
+        b: &Vector3<f64>,
+        p: Vector3<f64>,
+    ) -> SurfaceClearance {
+        let ab = b - a;
+        let l2 = ab.norm_squared();
+        let fraction = if l2 > 0.0 {
+            ((p - a).dot(&ab) / l2).clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+        let (value, triangle, weights, s) = self.signed_distance(&p);
+        let t = self.mesh.triangle(triangle as u32);
+        let face = from_g(t.normal().unwrap_or(GVec::Z));
+        // value = nᵀ (p − s): outside n points from s to p, inside from p to s.
+        let normal = (p - s)
+            .try_normalize(1e-12)
+            .map_or(face, |u| if value < 0.0 { -u } else { u });
+        SurfaceClearance {
+            value,
+            segment: k,
+            fraction,
+            triangle,
+            weights,
+            point: p,
+            surface_point: s,
+            normal,
+        }
+    }
+
+    fn segment_clearance(&self, k: usize, a: &Vector3<f64>, b: &Vector3<f64>) -> SurfaceClearance {
+        let seg = Segment::new(to_g(a), to_g(b));
+        let id = Pose::IDENTITY;
+        if let Ok(ClosestPoints::WithinMargin(p, _)) =
+            closest_points(&id, &seg, &id, &self.mesh, f64::MAX)
+        {
+            // Not touching the surface: wholly outside or wholly inside.
+            let c = self.pair(k, a, b, from_g(p));
+            if c.value > 0.0 {
+                return c;
+            }
+        }
+        // Crossing or inside: the deepest point, by samples refined by golden section.
+        let at = |f: f64| a + (b - a) * f;
+        let phi = |f: f64| self.signed_distance(&at(f)).0;
+        let (mut fbest, mut vbest) = (0.0, phi(0.0));
+        for i in 1..=DEPTH_SAMPLES {
+            let f = i as f64 / DEPTH_SAMPLES as f64;
+            let v = phi(f);
+            if v < vbest {
+                (fbest, vbest) = (f, v);
+            }
+        }
+        let h = 1.0 / DEPTH_SAMPLES as f64;
+        let (mut lo, mut hi) = ((fbest - h).max(0.0), (fbest + h).min(1.0));
+        let g = (5f64.sqrt() - 1.0) / 2.0;
+        let (mut x1, mut x2) = (hi - g * (hi - lo), lo + g * (hi - lo));
+        let (mut v1, mut v2) = (phi(x1), phi(x2));
+        for _ in 0..40 {
+            if v1 < v2 {
+                (hi, x2, v2) = (x2, x1, v1);
+                x1 = hi - g * (hi - lo);
+                v1 = phi(x1);
+            } else {
+                (lo, x1, v1) = (x1, x2, v2);
+                x2 = lo + g * (hi - lo);
+                v2 = phi(x2);
+            }
+        }
+        let (f, v) = if v1 < v2 { (x1, v1) } else { (x2, v2) };
+        let f = if v < vbest { f } else { fbest };
+        self.pair(k, a, b, at(f))
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -316,5 +474,213 @@ mod tests {
             .project(&n, &tris, &Vector3::new(0.4, 0.4, 0.5), 10.0)
             .expect("hit");
         assert!((mid.smooth_normal.norm() - 1.0).abs() < 1e-12 && mid.smooth_normal.z > 0.7);
+    }
+
+    use crate::obstacle_mesh::{box_surface, icosphere};
+
+    /// A small deterministic generator in [−1, 1).
+    fn lcg(state: &mut u64) -> f64 {
+        *state = state
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (*state >> 11) as f64 / (1u64 << 52) as f64 - 1.0
+    }
+
+    fn distance_point_segment(c: &Vector3<f64>, a: &Vector3<f64>, b: &Vector3<f64>) -> f64 {
+        let d = b - a;
+        let f = ((c - a).dot(&d) / d.norm_squared()).clamp(0.0, 1.0);
+        (a + f * d - c).norm()
+    }
+
+    #[test]
+    fn a_triangulated_sphere_gives_the_analytic_sphere_clearance_within_its_tessellation_error() {
+        let (centre, r) = (Vector3::new(3.0, -1.0, 2.0), 2.5);
+        let m = icosphere(3);
+        let v: Vec<_> = m.vertices.iter().map(|u| centre + u * r).collect();
+        // The inscribed polyhedron lies between the sphere and the faces' nearest planes.
+        let sag = m
+            .triangles
+            .iter()
+            .map(|t| {
+                let [a, b, c] = t.map(|i| v[i]);
+                let n = (b - a).cross(&(c - a)).normalize();
+                r - (a - centre).dot(&n)
+            })
+            .fold(0.0, f64::max);
+        assert!(sag > 0.0 && sag < 0.02, "sagitta {sag}");
+        let s = ClosedSurface::new(&v, &m.triangles).expect("surface");
+        let mut seed = 7;
+        let (mut outside, mut inside) = (0, 0);
+        for _ in 0..200 {
+            let a = centre + Vector3::new(lcg(&mut seed), lcg(&mut seed), lcg(&mut seed)) * 4.0;
+            let b = a + Vector3::new(lcg(&mut seed), lcg(&mut seed), lcg(&mut seed)) * 3.0;
+            let analytic = distance_point_segment(&centre, &a, &b) - r;
+            let c = s.clearance(&[(a, b)]).expect("one segment");
+            // The polyhedron is inside the sphere: its clearance is larger, by at most the
+            // sagitta (and the sampled depth inside is exact to the same bound).
+            assert!(
+                c.value >= analytic - 1e-6 && c.value <= analytic + sag + 1e-6,
+                "{a:?} {b:?}: mesh {} analytic {analytic} (sagitta {sag})",
+                c.value
+            );
+            // The pair is consistent: value = nᵀ (p − s), |n| = 1, p on the segment, s on the
+            // surface's triangle with the given weights.
+            assert!((c.value - c.normal.dot(&(c.point - c.surface_point))).abs() < 1e-9);
+            assert!((c.normal.norm() - 1.0).abs() < 1e-12);
+            assert!((a + (b - a) * c.fraction - c.point).norm() < 1e-9);
+            let t = m.triangles[c.triangle];
+            let sp: Vector3<f64> = (0..3).map(|i| c.weights[i] * v[t[i]]).sum();
+            assert!((sp - c.surface_point).norm() < 1e-9);
+            if analytic > 0.05 {
+                outside += 1;
+            } else if analytic < -0.05 {
+                inside += 1;
+                assert!(c.value < 0.0);
+            }
+        }
+        assert!(
+            outside > 50 && inside > 20,
+            "{outside} outside, {inside} inside"
+        );
+    }
+
+    #[test]
+    fn a_box_gives_its_exact_signed_clearance_outside_across_and_inside() {
+        let b = box_surface(
+            &Vector3::new(-1.0, -2.0, -3.0),
+            &Vector3::new(1.0, 2.0, 3.0),
+        );
+        let s = ClosedSurface::new(&b.vertices, &b.triangles).expect("surface");
+        let clear = |a: [f64; 3], b: [f64; 3]| {
+            s.clearance(&[(Vector3::from(a), Vector3::from(b))])
+                .expect("segment")
+        };
+        // Outside, facing the x face: 0.5 mm away, normal +x.
+        let c = clear([1.5, -5.0, 0.0], [1.5, 5.0, 0.0]);
+        assert!((c.value - 0.5).abs() < 1e-12, "{c:?}");
+        assert!((c.normal - Vector3::x()).norm() < 1e-12);
+        // Outside, nearest to an edge: √(0.5² + 0.5²).
+        let c = clear([1.5, 2.5, -10.0], [1.5, 2.5, 10.0]);
+        assert!((c.value - 0.5f64.hypot(0.5)).abs() < 1e-12, "{c:?}");
+        // Through the box along z on its axis: the deepest point is 1 mm from the x faces.
+        let c = clear([0.0, 0.0, -10.0], [0.0, 0.0, 10.0]);
+        assert!((c.value + 1.0).abs() < 1e-9, "{c:?}");
+        // Wholly inside, off-centre: 0.3 mm from the +x face at its deepest end... along y the
+        // segment ends 0.5 mm from the +y face, its x stays 0.7 (0.3 from +x).
+        let c = clear([0.7, 0.0, 0.0], [0.7, 1.5, 0.0]);
+        assert!((c.value + 0.3).abs() < 1e-9, "{c:?}");
+        assert!((c.normal - Vector3::x()).norm() < 1e-6, "{c:?}");
+        // Entering through a face: depth of the inner end, 0.4 below the +z face... the end
+        // (0, 0, 2.6) is 0.4 from +z, 1 from ±x.
+        let c = clear([0.0, 0.0, 5.0], [0.0, 0.0, 2.6]);
+        assert!((c.value + 0.4).abs() < 1e-9, "{c:?}");
+        // Inside test.
+        assert!(s.contains(&Vector3::new(0.9, 1.9, 2.9)));
+        assert!(!s.contains(&Vector3::new(1.1, 0.0, 0.0)));
+        // Several segments: the smallest.
+        let c = s
+            .clearance(&[
+                (Vector3::new(3.0, 0.0, 0.0), Vector3::new(3.0, 1.0, 0.0)),
+                (Vector3::new(1.25, 0.0, 0.0), Vector3::new(1.25, 1.0, 0.0)),
+            ])
+            .expect("segments");
+        assert_eq!(c.segment, 1);
+        assert!((c.value - 0.25).abs() < 1e-12);
+    }
+
+    /// The clearance's first-order change under a motion of the polyline's nodes and the
+    /// surface's vertices is `nᵀ (Δp − Δs)`, with `p` the polyline's point at its fixed fraction
+    /// and `s` the surface point at its fixed barycentric weights (the sensitivity the host's
+    /// clearance rows use), against central finite differences: of the signed distance of the
+    /// point `p` at its fixed fraction (outside and inside), and of the whole clearance
+    /// (outside, where the closest pair is unique and the two agree; inside, the deepest point
+    /// is in general equidistant from two faces and the clearance has a kink there, so the rows
+    /// hold the needle point fixed, as for a sphere).
+    #[test]
+    fn the_clearance_sensitivity_matches_finite_differences() {
+        let m = icosphere(2);
+        let centre = Vector3::new(0.0, 0.0, 0.0);
+        let mut seed = 11;
+        let mut checked = [0, 0];
+        for trial in 0..60 {
+            // An irregular surface: the sphere's vertices moved radially.
+            let v: Vec<_> = m
+                .vertices
+                .iter()
+                .map(|u| centre + u * (2.0 + 0.3 * lcg(&mut seed)))
+                .collect();
+            // A polyline of two segments, outside or through the surface.
+            let off = if trial % 2 == 0 { 3.0 } else { 1.0 };
+            let x: Vec<Vector3<f64>> = (0..3)
+                .map(|i| {
+                    Vector3::new(
+                        off + 0.3 * lcg(&mut seed),
+                        -3.0 + 3.0 * i as f64 + 0.3 * lcg(&mut seed),
+                        0.5 * lcg(&mut seed),
+                    )
+                })
+                .collect();
+            // A random direction of motion of every node and vertex.
+            let dx: Vec<Vector3<f64>> = (0..3)
+                .map(|_| Vector3::new(lcg(&mut seed), lcg(&mut seed), lcg(&mut seed)))
+                .collect();
+            let dv: Vec<Vector3<f64>> = (0..v.len())
+                .map(|_| Vector3::new(lcg(&mut seed), lcg(&mut seed), lcg(&mut seed)))
+                .collect();
+            let moved = |h: f64| {
+                let xs: Vec<_> = x.iter().zip(&dx).map(|(a, d)| a + d * h).collect();
+                let vs: Vec<_> = v.iter().zip(&dv).map(|(a, d)| a + d * h).collect();
+                (xs, ClosedSurface::new(&vs, &m.triangles).expect("surface"))
+            };
+            let clearance = |h: f64| {
+                let (xs, s) = moved(h);
+                s.clearance(&[(xs[0], xs[1]), (xs[1], xs[2])])
+                    .expect("segments")
+            };
+            let c = clearance(0.0);
+            let k = c.segment;
+            // The signed distance of the needle point at its fixed fraction.
+            let at_point = |h: f64| {
+                let (xs, s) = moved(h);
+                let p = xs[k] * (1.0 - c.fraction) + xs[k + 1] * c.fraction;
+                s.signed_distance(&p)
+            };
+            let dp = dx[k] * (1.0 - c.fraction) + dx[k + 1] * c.fraction;
+            let t = m.triangles[c.triangle];
+            let ds: Vector3<f64> = (0..3).map(|i| dv[t[i]] * c.weights[i]).sum();
+            let predicted = c.normal.dot(&(dp - ds));
+            let h = 1e-5;
+            let (plus, minus) = (at_point(h), at_point(-h));
+            let inside = c.value < 0.0;
+            if plus.1 == c.triangle && minus.1 == c.triangle {
+                let fd = (plus.0 - minus.0) / (2.0 * h);
+                assert!(
+                    (fd - predicted).abs() < 1e-5 * (1.0 + predicted.abs()),
+                    "trial {trial} (inside {inside}): finite difference {fd}, predicted {predicted}"
+                );
+            } else {
+                // The closest triangle switches at p (inside, the deepest point is in general
+                // equidistant from two faces): the prediction is the derivative along one side.
+                let forward = (plus.0 - c.value) / h;
+                let backward = (c.value - minus.0) / h;
+                let err = (forward - predicted)
+                    .abs()
+                    .min((backward - predicted).abs());
+                assert!(
+                    err < 1e-4 * (1.0 + predicted.abs()),
+                    "trial {trial} (inside {inside}): one-sided differences {forward}, {backward}, predicted {predicted}"
+                );
+            }
+            if !inside {
+                let (cp, cm) = (clearance(h), clearance(-h));
+                let fd = (cp.value - cm.value) / (2.0 * h);
+                assert!(
+                    (fd - predicted).abs() < 1e-5 * (1.0 + predicted.abs()),
+                    "trial {trial}: finite difference of the clearance {fd}, predicted {predicted}"
+                );
+            }
+            checked[usize::from(inside)] += 1;
+        }
+        assert!(checked[0] > 15 && checked[1] > 15, "checked {checked:?}");
     }
 }

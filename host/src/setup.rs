@@ -19,7 +19,7 @@ use crate::mesh::{TetMesh, box_mesh, read_mesh};
 use crate::scene::{GelSolveSpec, InsertionMode, Scene};
 use crate::step::{Insertion, Interaction, StepParams, TargetMotion};
 use crate::support_motion::SupportMotion;
-use crate::world::{World, WorldParts, node_frame_offset};
+use crate::world::{ObstacleShape, World, WorldParts, node_frame_offset};
 use nalgebra::{Isometry3, Rotation3, Translation3, UnitQuaternion, Vector3};
 use needle_core::ik::{IkParams, solve_ik};
 use needle_core::inverse::InverseParams;
@@ -141,11 +141,7 @@ impl<const N: usize> Setup<N> {
         let robot = scene.robot_n::<N>().map_err(robot_error)?;
         let q = start_joints_n(scene, &robot)?;
         let needle = start_needle(scene, &robot, &q)?;
-        let obstacles = scene
-            .obstacles
-            .iter()
-            .map(|o| (Vector3::from(o.center), o.radius))
-            .collect();
+        let obstacles = obstacle_shapes(scene)?;
         let world = World::try_new(WorldParts {
             robot,
             gel,
@@ -532,4 +528,41 @@ mod tests {
         .expect("scene");
         assert_eq!(step_params(&s), StepParams::default());
     }
+}
+
+/// The scene's obstacles in the rest configuration: spheres, and surface meshes read from
+/// their files and placed (`scale`, then `translation`).
+///
+/// # Errors
+/// [`SetupError::ObstacleMesh`] for a mesh file that cannot be read or is not a closed surface.
+pub fn obstacle_shapes(scene: &Scene) -> Result<Vec<ObstacleShape>, SetupError> {
+    scene
+        .obstacles
+        .iter()
+        .enumerate()
+        .map(|(index, o)| match (&o.mesh, o.center, o.radius) {
+            (Some(file), _, _) => crate::obstacle_mesh::read_surface_mesh(file)
+                .map(|m| {
+                    ObstacleShape::Mesh(m.placed(
+                        o.scale.unwrap_or(1.0),
+                        &Vector3::from(o.translation.unwrap_or_default()),
+                    ))
+                })
+                .map_err(|reason| SetupError::ObstacleMesh {
+                    index,
+                    file: file.clone(),
+                    reason,
+                }),
+            (None, Some(center), Some(radius)) => Ok(ObstacleShape::Sphere {
+                center: Vector3::from(center),
+                radius,
+            }),
+            // Refused by the scene's validation.
+            (None, _, _) => Err(SetupError::ObstacleMesh {
+                index,
+                file: Default::default(),
+                reason: "neither a sphere (`center`, `radius`) nor a mesh (`mesh`)".into(),
+            }),
+        })
+        .collect()
 }

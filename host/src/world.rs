@@ -8,7 +8,7 @@
 
 use crate::error::SetupError;
 use crate::free_motion::{GelModel, NeedleModel};
-use crate::proximity::{Embedded, TetLocator};
+use crate::proximity::{ClosedSurface, Embedded, SurfaceClearance, TetLocator};
 use crate::scene::SampledPath;
 use crate::support_motion::SupportMotion;
 use nalgebra::{Matrix3, Rotation3, Vector3};
@@ -35,12 +35,45 @@ pub struct WorldParts<const N: usize = 6> {
     pub needle_length: f64,
     /// The planned path (rest configuration).
     pub path: SampledPath,
-    /// Obstacle centres (rest configuration) and radii [mm].
-    pub obstacles: Vec<(Vector3<f64>, f64)>,
+    /// Obstacles in the rest configuration.
+    pub obstacles: Vec<ObstacleShape>,
     /// Start joints [rad].
     pub q: [f64; N],
     /// A prescribed motion of the gel's fixed nodes (none: they stay at rest).
     pub support_motion: Option<SupportMotion>,
+}
+
+/// An obstacle in the rest configuration [mm].
+#[derive(Clone, Debug, PartialEq)]
+pub enum ObstacleShape {
+    /// A sphere.
+    Sphere {
+        /// Centre.
+        center: Vector3<f64>,
+        /// Radius.
+        radius: f64,
+    },
+    /// A closed, outward-oriented surface mesh.
+    Mesh(crate::obstacle_mesh::SurfaceMesh),
+}
+
+/// An obstacle embedded in the gel: it deforms with it.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Obstacle {
+    /// A sphere whose centre moves with the gel (its radius stays).
+    Sphere {
+        /// The centre.
+        centre: Embedded,
+        /// Radius [mm].
+        radius: f64,
+    },
+    /// A closed surface each of whose vertices moves with the gel.
+    Mesh {
+        /// The vertices.
+        vertices: Vec<Embedded>,
+        /// Triangles (outward).
+        triangles: Vec<[usize; 3]>,
+    },
 }
 
 /// The whole simulated system and its interaction state; the robot has `N` joints (6 by
@@ -62,8 +95,8 @@ pub struct World<const N: usize = 6> {
     rest_locator: TetLocator,
     /// The entry point (planned before puncture, actual after), embedded in the gel.
     pub entry: Embedded,
-    /// Obstacle centres embedded in the gel, with radii [mm].
-    pub obstacles: Vec<(Embedded, f64)>,
+    /// Obstacles embedded in the gel.
+    pub obstacles: Vec<Obstacle>,
     /// Whether the tip has punctured the surface.
     pub punctured: bool,
     /// Whether the tip pushed on the surface in the last step (contact force > 0).
@@ -170,11 +203,34 @@ impl<const N: usize> World<N> {
         let obstacles = obstacles
             .iter()
             .enumerate()
-            .map(|(index, &(center, radius))| {
-                rest_locator
+            .map(|(index, o)| match o {
+                &ObstacleShape::Sphere { center, radius } => rest_locator
                     .locate(rest, tets, &center, 0.0)
-                    .map(|e| (e, radius))
-                    .ok_or(SetupError::ObstacleOutside { index, center })
+                    .map(|centre| Obstacle::Sphere { centre, radius })
+                    .ok_or(SetupError::ObstacleOutside { index, center }),
+                ObstacleShape::Mesh(m) => {
+                    // Every vertex in an element of the rest gel (on its surface counts, as
+                    // for the path: barycentric weights above −1e-9).
+                    let vertices = m
+                        .vertices
+                        .iter()
+                        .enumerate()
+                        .map(|(vertex, p)| {
+                            rest_locator
+                                .locate(rest, tets, p, 0.0)
+                                .filter(|e| e.weights.iter().all(|w| *w >= -1e-9))
+                                .ok_or(SetupError::ObstacleVertexOutside {
+                                    index,
+                                    vertex,
+                                    point: *p,
+                                })
+                        })
+                        .collect::<Result<Vec<_>, _>>()?;
+                    Ok(Obstacle::Mesh {
+                        vertices,
+                        triangles: m.triangles.clone(),
+                    })
+                }
             })
             .collect::<Result<Vec<_>, _>>()?;
         let surface = mesh.surface_triangles();
@@ -307,10 +363,69 @@ impl<const N: usize> World<N> {
             .fold(0.0, f64::max)
     }
 
+    /// The inserted part of the needle's centre line: each segment `k` (nodes `k`, `k + 1`)
+    /// clipped to the needle within `depth` of arc length from the tip, as `(k, f0)`: the part
+    /// from fraction `f0` to 1. Empty before puncture.
+    pub fn inserted_segments(&self) -> Vec<(usize, f64)> {
+        let nodes = self.needle.positions();
+        let depth = self.depth();
+        if !self.punctured || depth <= 0.0 {
+            return Vec::new();
+        }
+        let mut arc = vec![0.0; nodes.len()];
+        for k in (0..nodes.len() - 1).rev() {
+            arc[k] = arc[k + 1] + (nodes[k + 1] - nodes[k]).norm();
+        }
+        (0..nodes.len() - 1)
+            .filter(|&k| arc[k + 1] < depth)
+            .map(|k| {
+                let f0 = if arc[k] > depth {
+                    (arc[k] - depth) / (arc[k] - arc[k + 1])
+                } else {
+                    0.0
+                };
+                (k, f0)
+            })
+            .collect()
+    }
+
+    /// The current vertices of a mesh obstacle [mm].
+    pub fn obstacle_vertices(&self, vertices: &[Embedded]) -> Vec<Vector3<f64>> {
+        vertices.iter().map(|e| self.gel_point(e)).collect()
+    }
+
+    /// The signed clearance of the inserted needle to a mesh obstacle at its current (deformed)
+    /// vertices, with its closest pair ([`ClosedSurface::clearance`]); `segment` and `fraction`
+    /// are the needle's (segment `k` between nodes `k` and `k + 1`). `None` when nothing is
+    /// inserted.
+    pub fn mesh_clearance(
+        &self,
+        vertices: &[Embedded],
+        triangles: &[[usize; 3]],
+    ) -> Option<SurfaceClearance> {
+        let inserted = self.inserted_segments();
+        if inserted.is_empty() {
+            return None;
+        }
+        let nodes = self.needle.positions();
+        let segments: Vec<_> = inserted
+            .iter()
+            .map(|&(k, f0)| (nodes[k] + f0 * (nodes[k + 1] - nodes[k]), nodes[k + 1]))
+            .collect();
+        let surface = ClosedSurface::new(&self.obstacle_vertices(vertices), triangles)?;
+        let mut c = surface.clearance(&segments)?;
+        // Back to the needle's segment and fraction.
+        let (k, f0) = inserted[c.segment];
+        c.segment = k;
+        c.fraction = f0 + c.fraction * (1.0 - f0);
+        Some(c)
+    }
+
     /// Clearance of the inserted needle to each deformed obstacle surface (negative: hit) [mm].
     ///
     /// The inserted part is the needle within `depth` of arc length from the tip; before
-    /// puncture nothing is inserted and every clearance is `+∞`.
+    /// puncture nothing is inserted and every clearance is `+∞`. A sphere: the distance of
+    /// its centre to the centre line less its radius; a mesh: [`Self::mesh_clearance`].
     pub fn clearances(&self) -> Vec<f64> {
         let nodes = self.needle.positions();
         let depth = self.depth();
@@ -321,22 +436,30 @@ impl<const N: usize> World<N> {
         }
         self.obstacles
             .iter()
-            .map(|(e, r)| {
-                let c = self.gel_point(e);
-                let mut best = f64::INFINITY;
-                for k in 0..nodes.len() - 1 {
-                    if self.punctured && arc[k + 1] < depth {
-                        // Clip the segment to the inserted part.
-                        let f = if arc[k] > depth {
-                            (arc[k] - depth) / (arc[k] - arc[k + 1])
-                        } else {
-                            0.0
-                        };
-                        let a = nodes[k] + f * (nodes[k + 1] - nodes[k]);
-                        best = best.min(distance_point_segment(&c, &a, &nodes[k + 1]));
+            .map(|o| match o {
+                Obstacle::Sphere { centre, radius } => {
+                    let c = self.gel_point(centre);
+                    let mut best = f64::INFINITY;
+                    for k in 0..nodes.len() - 1 {
+                        if self.punctured && arc[k + 1] < depth {
+                            // Clip the segment to the inserted part.
+                            let f = if arc[k] > depth {
+                                (arc[k] - depth) / (arc[k] - arc[k + 1])
+                            } else {
+                                0.0
+                            };
+                            let a = nodes[k] + f * (nodes[k + 1] - nodes[k]);
+                            best = best.min(distance_point_segment(&c, &a, &nodes[k + 1]));
+                        }
                     }
+                    best - radius
                 }
-                best - r
+                Obstacle::Mesh {
+                    vertices,
+                    triangles,
+                } => self
+                    .mesh_clearance(vertices, triangles)
+                    .map_or(f64::INFINITY, |c| c.value),
             })
             .collect()
     }

@@ -334,7 +334,9 @@ fn embedded_path_and_obstacles_move_with_the_gel() {
     let gel = &sim.gel;
     let tets = &gel.mesh().tets;
     // The obstacle centre is the barycentric interpolation of its element's current nodes.
-    let (e, _) = sim.obstacles[0];
+    let needle_host::world::Obstacle::Sphere { centre: e, .. } = sim.obstacles[0] else {
+        panic!("the scene's obstacle is a sphere");
+    };
     let t = tets[e.tet];
     let expect: Vector3<f64> = (0..4).map(|k| e.weights[k] * gel.positions()[t[k]]).sum();
     let rest_centre: Vector3<f64> = (0..4).map(|k| e.weights[k] * gel.mesh().nodes[t[k]]).sum();

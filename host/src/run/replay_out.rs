@@ -8,11 +8,11 @@
 use super::{Observer, RunSummary};
 use crate::output::{OutputError, OutputFailure};
 use crate::replay::{
-    ReplayData, ReplayFrame, SphereObstacle, SurfaceMap, frame_stride, write_replay,
+    MeshObstacle, ReplayData, ReplayFrame, SphereObstacle, SurfaceMap, frame_stride, write_replay,
 };
 use crate::setup::Plan;
 use crate::step::StepReport;
-use crate::world::World;
+use crate::world::{Obstacle, World};
 use std::path::{Path, PathBuf};
 
 /// About how many frames a replay holds besides the last (its size grows with them: 1.9 MB for
@@ -48,19 +48,29 @@ impl ReplayRecorder {
         let file = dir.join("replay.html");
         let surface = SurfaceMap::from_triangles(&world.gel.mesh().surface_triangles())
             .map_err(|e| invalid(&file, e))?;
-        let spheres = world
-            .obstacles
-            .iter()
-            .enumerate()
-            .map(|(k, (_, radius))| SphereObstacle {
-                name: plan
-                    .obstacle_names
-                    .get(k)
-                    .cloned()
-                    .unwrap_or_else(|| format!("obstacle {k}")),
-                radius: *radius,
-            })
-            .collect();
+        let name = |k: usize| {
+            plan.obstacle_names
+                .get(k)
+                .cloned()
+                .unwrap_or_else(|| format!("obstacle {k}"))
+        };
+        let mut spheres = Vec::new();
+        let mut meshes = Vec::new();
+        for (k, o) in world.obstacles.iter().enumerate() {
+            match o {
+                Obstacle::Sphere { radius, .. } => spheres.push(SphereObstacle {
+                    name: name(k),
+                    radius: *radius,
+                }),
+                Obstacle::Mesh { triangles, .. } => meshes.push(MeshObstacle {
+                    name: name(k),
+                    triangles: triangles
+                        .iter()
+                        .map(|t| t.map(|i| u32::try_from(i).unwrap_or(u32::MAX)))
+                        .collect(),
+                }),
+            }
+        }
         let mut rec = Self {
             every: frame_stride(plan.steps, REPLAY_FRAMES),
             dt,
@@ -68,6 +78,7 @@ impl ReplayRecorder {
                 title: format!("{} · {} gel nodes", plan.name, world.gel.node_count()),
                 surface_triangles: surface.triangles.clone(),
                 spheres,
+                meshes,
                 ..ReplayData::default()
             },
             surface,
@@ -102,9 +113,19 @@ impl ReplayRecorder {
             sphere_centres: world
                 .obstacles
                 .iter()
-                .map(|(e, _)| world.gel_point(e))
+                .filter_map(|o| match o {
+                    Obstacle::Sphere { centre, .. } => Some(world.gel_point(centre)),
+                    Obstacle::Mesh { .. } => None,
+                })
                 .collect(),
-            mesh_nodes: Vec::new(),
+            mesh_nodes: world
+                .obstacles
+                .iter()
+                .filter_map(|o| match o {
+                    Obstacle::Mesh { vertices, .. } => Some(world.obstacle_vertices(vertices)),
+                    Obstacle::Sphere { .. } => None,
+                })
+                .collect(),
         })
     }
 }

@@ -18,7 +18,7 @@ use crate::constraints::GroupRole;
 use crate::output::OutputError;
 use crate::output::vtu::{Array, CellKind, Collection, Grid, Values, unit_sphere};
 use crate::step::{ConstraintForce, StepReport};
-use crate::world::World;
+use crate::world::{Obstacle, World};
 use nalgebra::Vector3;
 use std::path::{Path, PathBuf};
 
@@ -201,23 +201,42 @@ fn path<const N: usize>(world: &World<N>) -> Grid {
     )
 }
 
-/// Each obstacle as a sphere surface around its deformed centre.
+/// Each obstacle as a triangle surface: a sphere around its deformed centre, a mesh at its
+/// deformed vertices.
 fn obstacles<const N: usize>(world: &World<N>) -> Grid {
     let (unit, tris) = unit_sphere(2);
     let clearance = world.clearances();
     let mut grid = Grid::default();
     let (mut id, mut radius, mut clear) = (Vec::new(), Vec::new(), Vec::new());
-    for (k, (e, r)) in world.obstacles.iter().enumerate() {
-        let c = world.gel_point(e);
+    for (k, o) in world.obstacles.iter().enumerate() {
         let base = grid.points.len();
-        grid.points.extend(unit.iter().map(|u| c + u * *r));
-        grid.cells.extend(
-            tris.iter()
-                .map(|t| (CellKind::Triangle, t.iter().map(|i| base + i).collect())),
-        );
-        id.extend(std::iter::repeat_n(k as i32, tris.len()));
-        radius.extend(std::iter::repeat_n(*r, tris.len()));
-        clear.extend(std::iter::repeat_n(clearance[k], tris.len()));
+        let (count, r) = match o {
+            Obstacle::Sphere { centre, radius: r } => {
+                let c = world.gel_point(centre);
+                grid.points.extend(unit.iter().map(|u| c + u * *r));
+                grid.cells.extend(
+                    tris.iter()
+                        .map(|t| (CellKind::Triangle, t.iter().map(|i| base + i).collect())),
+                );
+                (tris.len(), *r)
+            }
+            Obstacle::Mesh {
+                vertices,
+                triangles,
+            } => {
+                grid.points.extend(world.obstacle_vertices(vertices));
+                grid.cells.extend(
+                    triangles
+                        .iter()
+                        .map(|t| (CellKind::Triangle, t.iter().map(|i| base + i).collect())),
+                );
+                // A mesh has no radius.
+                (triangles.len(), f64::NAN)
+            }
+        };
+        id.extend(std::iter::repeat_n(k as i32, count));
+        radius.extend(std::iter::repeat_n(r, count));
+        clear.extend(std::iter::repeat_n(clearance[k], count));
     }
     grid.cell_data = vec![
         Array::new("obstacle", Values::I32(id)),

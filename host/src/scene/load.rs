@@ -95,6 +95,22 @@ impl Scene {
         {
             *csv = dir.join(&*csv);
         }
+        // Obstacle meshes: resolved against the scene's folder and read now, so that a bad
+        // file is refused naming the scene, the field and the mesh file.
+        for (k, o) in scene.obstacles.iter_mut().enumerate() {
+            if let Some(mesh) = o.mesh.as_mut() {
+                if let Some(dir) = path.parent()
+                    && mesh.is_relative()
+                {
+                    *mesh = dir.join(&*mesh);
+                }
+                crate::obstacle_mesh::read_surface_mesh(mesh).map_err(|reason| SceneError {
+                    file: file.clone(),
+                    field: format!("obstacles[{k}].mesh"),
+                    reason: format!("{}: {reason}", mesh.display()),
+                })?;
+            }
+        }
         if let (Some(urdf), Some(dir)) = (scene.robot.urdf.as_mut(), path.parent())
             && urdf.is_relative()
         {

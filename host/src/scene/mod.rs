@@ -579,17 +579,44 @@ pub struct PathSpec {
     pub approach: f64,
 }
 
-/// A spherical obstacle, embedded in the gel at its rest position.
+/// An obstacle embedded in the gel at its rest position: a sphere (`center`, `radius`) or a
+/// closed surface mesh (`mesh`, placed by `scale` then `translation`).
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct ObstacleSpec {
     /// Label used in reports.
     #[serde(default)]
     pub name: String,
-    /// Centre in the rest configuration [mm].
-    pub center: [f64; 3],
-    /// Radius [mm].
-    pub radius: f64,
+    /// A sphere's centre in the rest configuration [mm].
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub center: Option<[f64; 3]>,
+    /// A sphere's radius [mm].
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub radius: Option<f64>,
+    /// A closed surface mesh file (`.stl`, binary or ASCII, or `.obj`), relative to the scene
+    /// file, its coordinates in mm in the rest configuration.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mesh: Option<PathBuf>,
+    /// Scale applied to the mesh's coordinates (about the file's origin) before `translation`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub scale: Option<f64>,
+    /// Translation added to the mesh's (scaled) coordinates [mm].
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub translation: Option<[f64; 3]>,
+}
+
+impl ObstacleSpec {
+    /// A sphere.
+    pub fn sphere(name: &str, center: [f64; 3], radius: f64) -> Self {
+        Self {
+            name: name.to_owned(),
+            center: Some(center),
+            radius: Some(radius),
+            mesh: None,
+            scale: None,
+            translation: None,
+        }
+    }
 }
 
 /// How the target moves along the path.

@@ -471,10 +471,45 @@ impl Scene {
             );
         }
         for (k, o) in self.obstacles.iter().enumerate() {
-            for c in 0..3 {
-                finite(&format!("obstacles[{k}].center[{c}]"), o.center[c])?;
+            let field = |f: &str| format!("obstacles[{k}].{f}");
+            match (&o.mesh, o.center, o.radius) {
+                (None, Some(center), Some(radius)) => {
+                    for (c, v) in center.iter().enumerate() {
+                        finite(&format!("obstacles[{k}].center[{c}]"), *v)?;
+                    }
+                    positive(&field("radius"), radius, "[mm]")?;
+                    let placed = [
+                        ("scale", o.scale.is_some()),
+                        ("translation", o.translation.is_some()),
+                    ];
+                    if let Some((f, _)) = placed.iter().find(|(_, given)| *given) {
+                        return fail(
+                            &field(f),
+                            "only a mesh obstacle (`mesh`) is placed by `scale` and `translation`; a sphere by `center`",
+                        );
+                    }
+                }
+                (None, c, _) => {
+                    return fail(
+                        &field(if c.is_none() { "center" } else { "radius" }),
+                        "missing: an obstacle is a sphere (`center` and `radius`) or a surface mesh (`mesh`)",
+                    );
+                }
+                (Some(_), c, r) => {
+                    if c.is_some() || r.is_some() {
+                        return fail(
+                            &field(if c.is_some() { "center" } else { "radius" }),
+                            "a mesh obstacle (`mesh`) has no `center` or `radius`: place it by `scale` and `translation`",
+                        );
+                    }
+                    if let Some(sc) = o.scale {
+                        positive(&field("scale"), sc, "[–]")?;
+                    }
+                    for (c, v) in o.translation.unwrap_or_default().iter().enumerate() {
+                        finite(&format!("obstacles[{k}].translation[{c}]"), *v)?;
+                    }
+                }
             }
-            positive(&format!("obstacles[{k}].radius"), o.radius, "[mm]")?;
         }
         positive(
             "insertion.advance_per_step",

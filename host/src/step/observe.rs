@@ -7,7 +7,7 @@ use super::{FreePositions, ROWS};
 use crate::compliance::PointMap;
 use crate::constraints::{ClearanceObservation, Model, Observation};
 use crate::step::rows::gel_map;
-use crate::world::World;
+use crate::world::{Obstacle, World};
 use nalgebra::{Matrix3, Rotation3, Vector3};
 use needle_core::inverse::base_violation;
 use needle_core::payload::{ComplianceFrame, NCLEAR, ValidationError};
@@ -53,9 +53,11 @@ pub fn observations<const N: usize>(
 }
 
 /// The obstacles the controller sees: for each obstacle, the point of the inserted needle
-/// nearest to its centre at the start of the step (the needle within `depth` of the tip, as
-/// [`World::clearances`] measures) and the centre, observed after the free motion; the `NCLEAR`
-/// nearest obstacles when there are more. None before puncture (nothing is inserted).
+/// nearest to it at the start of the step (the needle within `depth` of the tip, as
+/// [`World::clearances`] measures) and the obstacle's point (a sphere's centre; a mesh's
+/// closest surface point, through its triangle's vertices), observed after the free motion;
+/// the `NCLEAR` nearest obstacles when there are more. None before puncture (nothing is
+/// inserted).
 pub fn clearance_observations<const N: usize>(
     world: &World<N>,
     free: &FreePositions,
@@ -71,50 +73,91 @@ pub fn clearance_observations<const N: usize>(
     for k in (0..n - 1).rev() {
         arc[k] = arc[k + 1] + (nodes[k + 1] - nodes[k]).norm();
     }
+    let needle_at = |k: usize, f: f64| Observation {
+        model: Model::Needle,
+        map: PointMap::weighted([(Some(6 * k), 1.0 - f), (Some(6 * (k + 1)), f)]),
+        a: Matrix3::identity(),
+        free: free.needle[k] * (1.0 - f) + free.needle[k + 1] * f,
+    };
     let mut seen: Vec<(f64, ClearanceObservation)> = world
         .obstacles
         .iter()
-        .map(|(e, r)| {
-            let c = world.gel_point(e);
-            let mut best = (f64::INFINITY, n - 2, 1.0);
-            for k in (0..n - 1).filter(|&k| arc[k + 1] < depth) {
-                // The segment clipped to the inserted part, as a fraction range of [k, k + 1].
-                let f0 = if arc[k] > depth {
-                    (arc[k] - depth) / (arc[k] - arc[k + 1])
-                } else {
-                    0.0
-                };
-                let (a, b) = (nodes[k], nodes[k + 1]);
-                let ab = b - a;
-                let l2 = ab.norm_squared();
-                let f = if l2 > 0.0 {
-                    ((c - a).dot(&ab) / l2).clamp(f0, 1.0)
-                } else {
-                    1.0
-                };
-                let d = (a + f * ab - c).norm();
-                if d < best.0 {
-                    best = (d, k, f);
+        .filter_map(|o| match o {
+            Obstacle::Sphere {
+                centre: e,
+                radius: r,
+            } => {
+                let c = world.gel_point(e);
+                let mut best = (f64::INFINITY, n - 2, 1.0);
+                for k in (0..n - 1).filter(|&k| arc[k + 1] < depth) {
+                    // The segment clipped to the inserted part, as a fraction range of [k, k + 1].
+                    let f0 = if arc[k] > depth {
+                        (arc[k] - depth) / (arc[k] - arc[k + 1])
+                    } else {
+                        0.0
+                    };
+                    let (a, b) = (nodes[k], nodes[k + 1]);
+                    let ab = b - a;
+                    let l2 = ab.norm_squared();
+                    let f = if l2 > 0.0 {
+                        ((c - a).dot(&ab) / l2).clamp(f0, 1.0)
+                    } else {
+                        1.0
+                    };
+                    let d = (a + f * ab - c).norm();
+                    if d < best.0 {
+                        best = (d, k, f);
+                    }
                 }
+                let (d, k, f) = best;
+                let current = nodes[k] * (1.0 - f) + nodes[k + 1] * f - c;
+                let dist = current.norm();
+                let normal = if dist > 0.0 {
+                    current / dist
+                } else {
+                    Vector3::zeros()
+                };
+                let centre = gel_observation(gel_map(world, e), free.gel_point(world, e));
+                Some((
+                    d - r,
+                    ClearanceObservation {
+                        needle: needle_at(k, f),
+                        obstacle: vec![centre],
+                        clearance: dist - r,
+                        normal,
+                        current,
+                    },
+                ))
             }
-            let (d, k, f) = best;
-            let at = |x: &[Vector3<f64>]| x[k] * (1.0 - f) + x[k + 1] * f;
-            let needle = Observation {
-                model: Model::Needle,
-                map: PointMap::weighted([(Some(6 * k), 1.0 - f), (Some(6 * (k + 1)), f)]),
-                a: Matrix3::identity(),
-                free: at(&free.needle),
-            };
-            let centre = gel_observation(gel_map(world, e), free.gel_point(world, e));
-            (
-                d - r,
-                ClearanceObservation {
-                    needle,
-                    centre,
-                    radius: *r,
-                    current: at(nodes) - c,
-                },
-            )
+            Obstacle::Mesh {
+                vertices,
+                triangles,
+            } => {
+                let c = world.mesh_clearance(vertices, triangles)?;
+                let tri = triangles[c.triangle];
+                let obstacle = (0..3)
+                    .map(|i| {
+                        let e = &vertices[tri[i]];
+                        let w = c.weights[i];
+                        Observation {
+                            model: Model::Gel,
+                            map: gel_map(world, e),
+                            a: Matrix3::identity() * w,
+                            free: free.gel_point(world, e) * w,
+                        }
+                    })
+                    .collect();
+                Some((
+                    c.value,
+                    ClearanceObservation {
+                        needle: needle_at(c.segment, c.fraction),
+                        obstacle,
+                        clearance: c.value,
+                        normal: c.normal,
+                        current: c.point - c.surface_point,
+                    },
+                ))
+            }
         })
         .collect();
     seen.sort_by(|a, b| a.0.total_cmp(&b.0));
