@@ -1,0 +1,283 @@
+//! Obstacles given as surface meshes (issue 15, item 3): the example scenes, runs with the
+//! spheres of suite scenes replaced by triangulated spheres (the controller's clearance rows
+//! predict the measured clearance; a needle held by a mesh obstacle is stopped as blocked, not
+//! driven into it), and the refusals of bad mesh input.
+
+use needle_bridge::InProcess;
+use needle_host::obstacle_mesh::icosphere;
+use needle_host::run::{Outcome, RunOptions, StopReason, run};
+use needle_host::scene::{ObstacleSpec, Scene};
+use needle_host::setup::Setup;
+use needle_host::step::Pipeline;
+use std::path::{Path, PathBuf};
+
+fn scene_file(rel: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join(rel)
+}
+
+fn load(rel: &str) -> Scene {
+    Scene::load(&scene_file(rel)).expect("scene")
+}
+
+/// A fresh folder under the system's temporary folder.
+fn temp_dir(tag: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!(
+        "needle-mesh-obstacles-{tag}-{}",
+        std::process::id()
+    ));
+    std::fs::create_dir_all(&d).expect("temp dir");
+    d
+}
+
+/// Writes the unit icosphere of `subdivisions` as an OBJ file.
+fn write_sphere_obj(file: &Path, subdivisions: usize) {
+    let m = icosphere(subdivisions);
+    let mut text = String::new();
+    for v in &m.vertices {
+        text.push_str(&format!("v {:.17e} {:.17e} {:.17e}\n", v.x, v.y, v.z));
+    }
+    for t in &m.triangles {
+        text.push_str(&format!("f {} {} {}\n", t[0] + 1, t[1] + 1, t[2] + 1));
+    }
+    std::fs::write(file, text).expect("write OBJ");
+}
+
+/// `scene` with each sphere replaced by the triangulated sphere in `obj` scaled to its radius
+/// and moved to its centre.
+fn spheres_as_meshes(mut scene: Scene, obj: &Path) -> Scene {
+    for o in &mut scene.obstacles {
+        let (c, r) = (o.center.expect("a sphere"), o.radius.expect("a sphere"));
+        *o = ObstacleSpec {
+            name: o.name.clone(),
+            center: None,
+            radius: None,
+            mesh: Some(obj.to_path_buf()),
+            scale: Some(r),
+            translation: Some(c),
+        };
+    }
+    scene
+}
+
+/// The smallest clearance of a run over its obstacles [mm].
+fn smallest_clearance(s: &needle_host::run::RunSummary) -> f64 {
+    s.clearances
+        .iter()
+        .map(|c| c.min_mm)
+        .fold(f64::INFINITY, f64::min)
+}
+
+/// The example scene `mesh_sphere` (`simple` with its sphere as a 320-triangle OBJ) measures
+/// the clearance of `simple`'s analytic sphere within the tessellation error and the gel's
+/// deformation of the obstacle (the polyhedron lies at most 0.054 mm inside the sphere of radius
+/// 3 mm; its vertices move with the gel, where the sphere stays round about its embedded
+/// centre: measured 2.0085 against 2.0192 mm), and tracks as `simple` does (the clearance row
+/// stays inactive, far from the margin).
+#[test]
+#[ignore = "two insertions of 609 steps (release, ~15 s): run with --include-ignored"]
+fn a_triangulated_sphere_measures_the_analytic_sphere_clearance_in_a_run() {
+    let mesh = run(
+        &load("scenes/obstacles/mesh_sphere.toml"),
+        &RunOptions::default(),
+        |_| {},
+    )
+    .expect("run")
+    .summary;
+    let sphere = run(&load("scenes/simple.toml"), &RunOptions::default(), |_| {})
+        .expect("run")
+        .summary;
+    let (m, s) = (smallest_clearance(&mesh), smallest_clearance(&sphere));
+    eprintln!("min clearance: mesh {m:.4} mm, sphere {s:.4} mm");
+    assert!((m - s).abs() < 0.054 + 0.01, "mesh {m}, sphere {s}");
+    assert!((mesh.e_mean_mm - sphere.e_mean_mm).abs() < 1e-9);
+    assert_eq!(mesh.outcome, Outcome::Reached);
+}
+
+/// The example scene `mesh_box` (`simple` with a 6 mm cube from an STL file) runs to its target
+/// clear of the cube.
+#[test]
+#[ignore = "an insertion of 609 steps (release, ~8 s): run with --include-ignored"]
+fn the_mesh_box_example_reaches_its_target_clear_of_the_box() {
+    let s = run(
+        &load("scenes/obstacles/mesh_box.toml"),
+        &RunOptions::default(),
+        |_| {},
+    )
+    .expect("run")
+    .summary;
+    let min = smallest_clearance(&s);
+    eprintln!(
+        "mesh_box: e_mean {:.3} e_max {:.3} e_final {:.4} mm, min clearance {min:.3} mm",
+        s.e_mean_mm, s.e_max_mm, s.e_final_mm
+    );
+    assert_eq!(s.outcome, Outcome::Reached);
+    assert!(!s.obstacle_hit && min > 1.0, "{min}");
+}
+
+/// `obstacles_tight` (three obstacles 0.64–0.81 mm from the path) with its spheres as
+/// triangulated spheres (1280 triangles): after every step with the needle inserted, the
+/// frame's linear model of the nearest clearance, `clearance_free + clearance_c λ`, against the
+/// clearance measured after the step's corrective motion (the check of the mesh rows'
+/// sensitivity to λ through the simulation, as `controller.rs` does for spheres), and the
+/// controller keeps the needle clear of all three.
+#[test]
+#[ignore = "an insertion of 300 steps (release, ~10 s): run with --include-ignored"]
+fn mesh_clearance_rows_predict_the_clearance_after_the_step_and_keep_the_needle_clear() {
+    let dir = temp_dir("tight");
+    let obj = dir.join("sphere.obj");
+    write_sphere_obj(&obj, 3);
+    let scene = spheres_as_meshes(load("scenes/suite/obstacles_tight.toml"), &obj)
+        .with_overrides(&[("gel.box.nodes".into(), "600".into())])
+        .expect("override");
+    let s = Setup::build(&scene).expect("set-up");
+    let (mut world, params) = (s.world, s.params);
+    let mut core = InProcess::new(s.robot, s.inverse);
+    let mut pipeline = Pipeline::new(&world);
+    let (mut checked, mut worst, mut min) = (0, 0.0_f64, f64::INFINITY);
+    for _ in 0..s.plan.steps {
+        pipeline
+            .step(&mut world, &params, &mut core)
+            .expect("a step");
+        let (frame, cmd) = (pipeline.frame(), pipeline.command());
+        let mut measured = world.clearances();
+        min = measured.iter().copied().fold(min, f64::min);
+        if !world.punctured || world.depth() < 5.0 {
+            continue;
+        }
+        let k = frame.clearances();
+        assert_eq!(
+            k, 3,
+            "the three obstacles in the frame once the needle is in"
+        );
+        let mut predicted: Vec<f64> = (0..k).map(|j| frame.clearance(j, &cmd.lambda)).collect();
+        predicted.sort_by(f64::total_cmp);
+        measured.sort_by(f64::total_cmp);
+        worst = worst.max((predicted[0] - measured[0]).abs());
+        checked += 1;
+    }
+    std::fs::remove_dir_all(&dir).ok();
+    eprintln!(
+        "{checked} steps checked, worst |predicted − measured| {worst:.4} mm, min clearance {min:.3} mm"
+    );
+    assert!(checked > 100, "{checked} steps with the needle in");
+    assert!(worst < 0.05, "worst {worst} mm");
+    assert!(min > 0.0, "obstacle hit: {min} mm");
+}
+
+/// `needle_thin` (its path curves towards its obstacle faster than the thin needle can follow)
+/// with its sphere as a triangulated sphere: the mesh obstacle's clearance row holds the needle
+/// at the margin and the run is stopped as blocked, clear of it — as with the sphere
+/// (`obstacle_safety.rs`).
+#[test]
+#[ignore = "a scenario run (release, ~10 s): run with --include-ignored"]
+fn a_needle_held_by_a_mesh_obstacle_is_stopped_as_blocked_not_driven_into_it() {
+    let dir = temp_dir("thin");
+    let obj = dir.join("sphere.obj");
+    write_sphere_obj(&obj, 3);
+    let scene = spheres_as_meshes(load("scenes/suite/needle_thin.toml"), &obj);
+    let s = run(&scene, &RunOptions::default(), |_| {})
+        .expect("run")
+        .summary;
+    std::fs::remove_dir_all(&dir).ok();
+    let why = s.stop_reason.as_ref().expect("a stop reason");
+    eprintln!(
+        "{why:?}, {} steps, min clearance {:.3} mm",
+        s.steps,
+        smallest_clearance(&s)
+    );
+    assert!(matches!(why, StopReason::Blocked { .. }), "{why:?}");
+    assert_eq!(s.outcome, Outcome::MissedTarget, "{:?}", s.stopped);
+    let min = smallest_clearance(&s);
+    assert!(min > 0.0, "obstacle hit: {min} mm");
+}
+
+/// Bad mesh input is refused naming the scene file, the field and the reason.
+#[test]
+fn bad_mesh_obstacles_are_refused_naming_file_field_and_reason() {
+    let dir = temp_dir("bad");
+    let simple = std::fs::read_to_string(scene_file("scenes/simple.toml")).expect("simple");
+    let sphere = "[[obstacles]]\nname = \"sphere\"\ncenter = [300.0, 0.0, 20.0]\nradius = 3.0\n";
+    assert!(simple.contains(sphere));
+    let with = |tag: &str, obstacle: &str| {
+        let file = dir.join(format!("{tag}.toml"));
+        std::fs::write(&file, simple.replace(sphere, obstacle)).expect("write");
+        file
+    };
+    // A missing file.
+    let f = with("missing", "[[obstacles]]\nmesh = \"nowhere.stl\"\n");
+    let e = Scene::load(&f).unwrap_err();
+    assert_eq!(e.field, "obstacles[0].mesh");
+    assert!(
+        e.reason.contains("nowhere.stl") && e.reason.contains("cannot read"),
+        "{e}"
+    );
+    assert!(e.to_string().starts_with(&f.display().to_string()), "{e}");
+    // An open surface (a tetrahedron less one face).
+    std::fs::write(
+        dir.join("open.obj"),
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\n",
+    )
+    .expect("write");
+    let e = Scene::load(&with("open", "[[obstacles]]\nmesh = \"open.obj\"\n")).unwrap_err();
+    assert_eq!(e.field, "obstacles[0].mesh");
+    assert!(
+        e.reason.contains("open.obj") && e.reason.contains("not a closed surface"),
+        "{e}"
+    );
+    // A sphere's fields on a mesh, a mesh's on a sphere, neither, a bad scale.
+    let box_stl = scene_file("scenes/obstacles/box.stl");
+    let b = box_stl.display();
+    for (obstacle, field, words) in [
+        (
+            format!("[[obstacles]]\nmesh = \"{b}\"\nradius = 2.0\n"),
+            "obstacles[0].radius",
+            "has no `center` or `radius`",
+        ),
+        (
+            "[[obstacles]]\ncenter = [300.0, 0.0, 20.0]\nradius = 3.0\nscale = 2.0\n".into(),
+            "obstacles[0].scale",
+            "only a mesh obstacle",
+        ),
+        (
+            "[[obstacles]]\nname = \"x\"\n".into(),
+            "obstacles[0].center",
+            "missing",
+        ),
+        (
+            format!("[[obstacles]]\nmesh = \"{b}\"\nscale = -1.0\n"),
+            "obstacles[0].scale",
+            "",
+        ),
+    ] {
+        let e = Scene::load(&with("fields", &obstacle)).unwrap_err();
+        assert_eq!(e.field, field, "{e}");
+        assert!(e.reason.contains(words), "{e}");
+    }
+    // A vertex outside the gel (the gel's top is z = 60): refused at set-up.
+    let f = with(
+        "outside",
+        &format!("[[obstacles]]\nmesh = \"{b}\"\ntranslation = [300.0, 0.0, 58.0]\n"),
+    );
+    let e = Setup::build(&Scene::load(&f).expect("scene"))
+        .err()
+        .expect("refused");
+    let text = e.to_string();
+    assert!(
+        text.contains("obstacles[0].mesh") && text.contains("not inside the gel"),
+        "{text}"
+    );
+    // On the path (the `simple` path passes x = 301.28 at z = 40).
+    let f = with(
+        "on_path",
+        &format!("[[obstacles]]\nmesh = \"{b}\"\ntranslation = [301.0, 0.0, 40.0]\n"),
+    );
+    let e = Setup::build(&Scene::load(&f).expect("scene"))
+        .err()
+        .expect("refused");
+    let text = e.to_string();
+    assert!(
+        text.contains("obstacles[0]") && text.contains("lies on the path"),
+        "{text}"
+    );
+    std::fs::remove_dir_all(&dir).ok();
+}
