@@ -194,7 +194,7 @@ fn entry_point_off_the_gel_is_one_line_in_mm() {
 #[test]
 fn every_scene_of_the_repository_is_still_accepted() {
     let mut files = Vec::new();
-    for dir in ["scenes", "scenes/suite", "scenes/hard"] {
+    for dir in ["scenes", "scenes/suite", "scenes/hard", "scenes/obstacles"] {
         for e in std::fs::read_dir(repo().join(dir)).expect("scenes") {
             let p = e.expect("entry").path();
             if p.extension().is_some_and(|x| x == "toml") {
