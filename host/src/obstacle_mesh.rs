@@ -113,7 +113,7 @@ impl SurfaceMesh {
             triangles: tris,
         };
         let v = mesh.volume();
-        if !(v.abs() > 0.0) {
+        if v == 0.0 || !v.is_finite() {
             return Err("the surface encloses no volume".into());
         }
         if v < 0.0 {

@@ -514,22 +514,6 @@ fn start_needle<const N: usize>(
     Ok(needle)
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// A scene that sets nothing gets the typed parameters' own defaults.
-    #[test]
-    fn a_scene_with_defaults_gives_the_default_step_params() {
-        let s = Scene::from_toml_str(
-            "name = \"d\"\n[path]\npoints = [[300.0, 0.0, 60.0], [300.0, 0.0, 20.0]]\n",
-            "d.toml",
-        )
-        .expect("scene");
-        assert_eq!(step_params(&s), StepParams::default());
-    }
-}
-
 /// The scene's obstacles in the rest configuration: spheres, and surface meshes read from
 /// their files and placed (`scale`, then `translation`).
 ///
@@ -565,4 +549,20 @@ pub fn obstacle_shapes(scene: &Scene) -> Result<Vec<ObstacleShape>, SetupError> 
             }),
         })
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A scene that sets nothing gets the typed parameters' own defaults.
+    #[test]
+    fn a_scene_with_defaults_gives_the_default_step_params() {
+        let s = Scene::from_toml_str(
+            "name = \"d\"\n[path]\npoints = [[300.0, 0.0, 60.0], [300.0, 0.0, 20.0]]\n",
+            "d.toml",
+        )
+        .expect("scene");
+        assert_eq!(step_params(&s), StepParams::default());
+    }
 }
