@@ -126,7 +126,6 @@ pub enum SetupError {
         /// Why.
         reason: String,
     },
-    /// An FE model could not be built.
     /// The scene's plan cannot work: a path outside the gel or into its fixed part, an
     /// obstacle on the path, a needle too short for the insertion, a mesh in the wrong unit.
     #[error("{field}: {reason}")]
@@ -136,6 +135,7 @@ pub enum SetupError {
         /// Why, in plain units.
         reason: String,
     },
+    /// An FE model could not be built.
     #[error("the {body} model cannot be built")]
     Model {
         /// Which.

@@ -194,7 +194,15 @@ fn entry_point_off_the_gel_is_one_line_in_mm() {
 #[test]
 fn every_scene_of_the_repository_is_still_accepted() {
     let mut files = Vec::new();
-    for dir in ["scenes", "scenes/suite", "scenes/hard", "scenes/obstacles"] {
+    let dirs = [
+        "scenes",
+        "scenes/suite",
+        "scenes/hard",
+        "scenes/obstacles",
+        "scenes/robots",
+        "scenes/tissue",
+    ];
+    for dir in dirs {
         for e in std::fs::read_dir(repo().join(dir)).expect("scenes") {
             let p = e.expect("entry").path();
             if p.extension().is_some_and(|x| x == "toml") {
@@ -203,9 +211,15 @@ fn every_scene_of_the_repository_is_still_accepted() {
         }
     }
     assert!(files.len() > 20);
+    // Each with its robot's joint count (a 7-joint arm in `scenes/robots`).
+    struct Built;
+    impl needle_host::setup::WithSetup for Built {
+        type Output = ();
+        fn with<const N: usize>(self, _: Setup<N>) {}
+    }
     for f in files {
         let scene = Scene::load(&f).unwrap_or_else(|e| panic!("{}: {e}", f.display()));
-        if let Err(e) = Setup::build(&scene) {
+        if let Err(e) = needle_host::setup::with_setup(&scene, Built) {
             panic!("{}: {}", f.display(), needle_host::error::chain(&e));
         }
     }
