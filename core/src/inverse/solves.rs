@@ -199,8 +199,9 @@ impl<const M: usize, const N: usize> Controller<M, N> {
         mut rep: SolveReport,
     ) -> SolveReport {
         // Polish, then Gauss-Seidel for at most as many sweeps again; should that not converge
-        // (the rounds ran out on statuses that cycle), polish once more from the new iterate,
-        // then Gauss-Seidel for whatever the cap leaves.
+        // (the rounds ran out on statuses that cycle), polish again from the new iterate, up to
+        // POLISH_TIMES polishes in all, the last followed by Gauss-Seidel for whatever the cap
+        // leaves.
         for polish in 0..POLISH_TIMES {
             if rep.converged {
                 break;
