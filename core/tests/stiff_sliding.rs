@@ -46,24 +46,18 @@ fn load(name: &str) -> Problem {
         });
         rows += len as usize;
     }
+    let mut numbers = || -> Vec<f64> {
+        let line = lines.next().unwrap();
+        line.split_whitespace()
+            .map(|x| x.parse().unwrap())
+            .collect()
+    };
     let mut w = Box::new([[0.0; M]; M]);
     for row in w.iter_mut().take(m) {
-        let v: Vec<f64> = lines
-            .next()
-            .unwrap()
-            .split_whitespace()
-            .map(|x| x.parse().unwrap())
-            .collect();
-        row[..m].copy_from_slice(&v);
+        row[..m].copy_from_slice(&numbers());
     }
     let mut delta = [0.0; M];
-    let v: Vec<f64> = lines
-        .next()
-        .unwrap()
-        .split_whitespace()
-        .map(|x| x.parse().unwrap())
-        .collect();
-    delta[..m].copy_from_slice(&v);
+    delta[..m].copy_from_slice(&numbers());
     Problem {
         m,
         groups,

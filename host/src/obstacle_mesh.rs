@@ -137,63 +137,7 @@ impl SurfaceMesh {
 /// the new vertices pushed onto the sphere (20·4ⁿ triangles, every vertex at radius 1): a
 /// triangulated sphere for tests and example scenes.
 pub fn icosphere(subdivisions: usize) -> SurfaceMesh {
-    let t = (1.0 + 5f64.sqrt()) / 2.0;
-    let mut vertices: Vec<Vector3<f64>> = [
-        [-1.0, t, 0.0],
-        [1.0, t, 0.0],
-        [-1.0, -t, 0.0],
-        [1.0, -t, 0.0],
-        [0.0, -1.0, t],
-        [0.0, 1.0, t],
-        [0.0, -1.0, -t],
-        [0.0, 1.0, -t],
-        [t, 0.0, -1.0],
-        [t, 0.0, 1.0],
-        [-t, 0.0, -1.0],
-        [-t, 0.0, 1.0],
-    ]
-    .iter()
-    .map(|v| Vector3::from(*v).normalize())
-    .collect();
-    let mut triangles: Vec<[usize; 3]> = vec![
-        [0, 11, 5],
-        [0, 5, 1],
-        [0, 1, 7],
-        [0, 7, 10],
-        [0, 10, 11],
-        [1, 5, 9],
-        [5, 11, 4],
-        [11, 10, 2],
-        [10, 7, 6],
-        [7, 1, 8],
-        [3, 9, 4],
-        [3, 4, 2],
-        [3, 2, 6],
-        [3, 6, 8],
-        [3, 8, 9],
-        [4, 9, 5],
-        [2, 4, 11],
-        [6, 2, 10],
-        [8, 6, 7],
-        [9, 8, 1],
-    ];
-    for _ in 0..subdivisions {
-        let mut mid: HashMap<(usize, usize), usize> = HashMap::new();
-        let mut midpoint = |i: usize, j: usize, v: &mut Vec<Vector3<f64>>| {
-            *mid.entry((i.min(j), i.max(j))).or_insert_with(|| {
-                v.push(((v[i] + v[j]) / 2.0).normalize());
-                v.len() - 1
-            })
-        };
-        let mut next = Vec::with_capacity(4 * triangles.len());
-        for [a, b, c] in triangles {
-            let ab = midpoint(a, b, &mut vertices);
-            let bc = midpoint(b, c, &mut vertices);
-            let ca = midpoint(c, a, &mut vertices);
-            next.extend([[a, ab, ca], [b, bc, ab], [c, ca, bc], [ab, bc, ca]]);
-        }
-        triangles = next;
-    }
+    let (vertices, triangles) = crate::output::vtu::unit_sphere(subdivisions);
     SurfaceMesh {
         vertices,
         triangles,
