@@ -64,6 +64,13 @@ fn documents(root: &Path) -> Vec<PathBuf> {
 /// The text outside fenced code blocks, inline code spans removed (a link's text may be code:
 /// `[`x`](y)` keeps its `(y)`), one entry per line with its number.
 fn prose(text: &str) -> Vec<(usize, String)> {
+    lines_outside_fences(text, false)
+}
+
+/// The lines outside fenced code blocks with their numbers; inline code spans removed, or with
+/// `keep_code` only their backticks (a heading's anchor is made of its code too: ``## `[gel]` ``
+/// is `#gel`).
+fn lines_outside_fences(text: &str, keep_code: bool) -> Vec<(usize, String)> {
     let mut out = Vec::new();
     let mut fence: Option<&str> = None;
     for (i, line) in text.lines().enumerate() {
@@ -92,7 +99,7 @@ fn prose(text: &str) -> Vec<(usize, String)> {
         for c in line.chars() {
             if c == '`' {
                 in_code = !in_code;
-            } else if !in_code {
+            } else if !in_code || keep_code {
                 s.push(c);
             }
         }
@@ -167,7 +174,7 @@ fn slug(heading: &str) -> String {
 /// heading gets `-1`, `-2`, … as on GitHub).
 fn anchors(text: &str) -> BTreeSet<String> {
     let mut set = BTreeSet::new();
-    for (_, line) in prose(text) {
+    for (_, line) in lines_outside_fences(text, true) {
         let t = line.trim_start();
         let level = t.chars().take_while(|c| *c == '#').count();
         if (1..=6).contains(&level) && t[level..].starts_with(' ') {
@@ -468,6 +475,13 @@ fn the_link_scanner_finds_and_judges_links() {
     assert_eq!(
         slug("Two processes: host and core"),
         "two-processes-host-and-core"
+    );
+    // A heading's code is part of its anchor (it used to be dropped, and such a heading had
+    // none).
+    let a = anchors("## `[insertion]`\n### Moving tissue (`[gel.support_motion]`)\n");
+    assert!(
+        a.contains("insertion") && a.contains("moving-tissue-gelsupport_motion"),
+        "{a:?}"
     );
     let root = root();
     let doc = root.join("docs").join("benchmark.md");
