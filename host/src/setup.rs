@@ -253,6 +253,7 @@ pub fn step_params(scene: &Scene) -> StepParams {
                 InsertionMode::Insert => TargetMotion::Insert,
                 InsertionMode::BackAndForth => TargetMotion::BackAndForth,
             },
+            max_lead: scene.insertion.max_lead,
         },
         dt: scene.robot.dt,
     }

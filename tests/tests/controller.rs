@@ -72,3 +72,55 @@ fn qp_update_keeps_the_needle_clear_of_obstacles_near_the_path() {
         assert!(c.min_mm > 0.0, "{c:?}");
     }
 }
+
+/// `insertion.max_lead`: the target advances by `advance_per_step` while the tip keeps within
+/// `max_lead` of it along the path, and waits while the tip lags farther behind (at the puncture
+/// the target, embedded in the gel the tip has indented, jumps ahead of it). With the default
+/// (infinite) the target keeps to its schedule, `(k + 1) × advance`.
+#[test]
+fn target_waits_for_a_lagging_tip_with_a_finite_max_lead() {
+    let trace = |lead: &str| {
+        let scene = Scene::builtin("simple")
+            .expect("embedded")
+            .with_overrides(&[
+                ("gel.box.nodes".into(), "600".into()),
+                ("insertion.max_lead".into(), lead.into()),
+            ])
+            .expect("overrides");
+        let s = Setup::build(&scene).expect("set-up");
+        let (mut world, params) = (s.world, s.params);
+        let mut core = InProcess::new(s.robot, s.inverse);
+        let mut pipeline = Pipeline::new(&world);
+        let mut steps = Vec::new();
+        for _ in 0..160 {
+            let (c0, t) = (world.c, world.path.at(world.c).1);
+            let lag = (world.target(c0) - world.tip()).dot(&t);
+            pipeline
+                .step(&mut world, &params, &mut core)
+                .expect("a step");
+            steps.push((c0, lag, world.c));
+        }
+        (steps, params.insertion.advance_per_step)
+    };
+    let (follow, adv) = trace("0.5");
+    let mut holds = 0;
+    for (k, &(c0, lag, c1)) in follow.iter().enumerate().skip(1) {
+        if lag > 0.5 {
+            assert_eq!(
+                c1, c0,
+                "step {k}: the tip {lag:.3} mm behind, the target waits"
+            );
+            holds += 1;
+        } else {
+            assert!(
+                (c1 - c0 - adv).abs() < 1e-12,
+                "step {k}: {c0} → {c1}, lag {lag:.3}"
+            );
+        }
+    }
+    assert!(holds >= 1, "the target waited at least once (the puncture)");
+    let (schedule, _) = trace("inf");
+    for (k, &(_, _, c)) in schedule.iter().enumerate() {
+        assert!((c - (k + 1) as f64 * adv).abs() < 1e-9, "step {k}: c {c}");
+    }
+}

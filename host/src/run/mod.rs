@@ -283,7 +283,7 @@ impl<const N: usize> HiddenMotion<N> {
         use needle_core::payload::StatusFlags;
         let m = self.pipeline.step(&mut self.model, params, controller)?;
         self.replay.joints.push(self.model.q);
-        let mut r = pipeline.step(world, params, &mut self.replay)?;
+        let mut r = pipeline.step_to(world, params, &mut self.replay, self.model.c)?;
         r.solver.flags |= m.solver.flags & !StatusFlags::NOT_CONVERGED;
         Ok(r)
     }
@@ -396,12 +396,16 @@ pub fn run_setup_until<const N: usize>(
 ) -> Result<RunResult, RunError> {
     let Setup {
         mut world,
-        params,
+        mut params,
         robot,
         inverse,
         plan,
         model,
     } = setup;
+    if opts.controller == ControllerKind::Naive {
+        // The rigid-model IK was planned on the schedule: its target keeps to it.
+        params.insertion.max_lead = f64::INFINITY;
+    }
     let steps = opts.steps.unwrap_or(plan.steps);
     let vtk_every = opts.vtk_every.unwrap_or(plan.vtk_every);
     let files = outputs(opts, vtk_every, &plan, params.dt, &world)?;

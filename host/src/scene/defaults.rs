@@ -135,6 +135,9 @@ pub(super) fn default_approach() -> f64 {
 pub(super) fn default_advance() -> f64 {
     Insertion::default().advance_per_step
 }
+pub(super) fn default_max_lead() -> f64 {
+    Insertion::default().max_lead
+}
 pub(super) fn default_vtk_every() -> usize {
     0
 }

@@ -633,6 +633,10 @@ pub struct InsertionSpec {
     /// How the target moves along the path.
     #[serde(default)]
     pub mode: InsertionMode,
+    /// How far the target may lead the tip along the path before it waits for it [mm]
+    /// (`inf`: on schedule whatever the tip does).
+    #[serde(default = "default_max_lead")]
+    pub max_lead: f64,
 }
 
 impl Default for InsertionSpec {
@@ -641,6 +645,7 @@ impl Default for InsertionSpec {
             advance_per_step: default_advance(),
             steps: None,
             mode: InsertionMode::default(),
+            max_lead: default_max_lead(),
         }
     }
 }

@@ -251,6 +251,19 @@ fn start_joints_and_insertion_mode_are_checked_and_used() {
     assert!(e.to_string().contains("needs 6 values"), "{e}");
     let e = err_of(&format!("{MINIMAL}\n[insertion]\nmode = \"sideways\"\n"));
     assert!(e.to_string().contains("insertion.mode"), "{e}");
+    for lead in ["0.05", "nan", "-1.0"] {
+        let e = err_of(&format!("{MINIMAL}\n[insertion]\nmax_lead = {lead}\n"));
+        assert!(
+            e.to_string().contains("insertion.max_lead") && e.to_string().contains("at least"),
+            "{lead}: {e}"
+        );
+    }
+    let lead = Scene::from_toml_str(
+        &format!("{MINIMAL}\n[insertion]\nmax_lead = 0.5\n"),
+        "ok.toml",
+    )
+    .expect("valid");
+    assert_eq!(crate::setup::step_params(&lead).insertion.max_lead, 0.5);
 
     let s = Scene::from_toml_str(
         &format!("{MINIMAL}\n[insertion]\nmode = \"back-and-forth\"\nadvance_per_step = 1.0\n"),
@@ -270,6 +283,10 @@ fn start_joints_and_insertion_mode_are_checked_and_used() {
     let insert = Scene::from_toml_str(MINIMAL, "ok.toml").expect("valid");
     let insertion = crate::setup::step_params(&insert).insertion;
     assert_eq!(insertion.target_arc(total, 500), total);
+    assert!(
+        !insertion.follows_tip(),
+        "the default keeps to the schedule"
+    );
 }
 
 #[test]

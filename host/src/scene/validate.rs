@@ -522,6 +522,16 @@ impl Scene {
                 "exceeds the whole path length",
             );
         }
+        let lead = self.insertion.max_lead;
+        if lead.is_nan() || lead < self.insertion.advance_per_step {
+            return fail(
+                "insertion.max_lead",
+                format!(
+                    "must be at least `advance_per_step` ({} mm), or `inf` (got {lead})",
+                    self.insertion.advance_per_step
+                ),
+            );
+        }
         match self.insertion.steps {
             Some(0) => fail(
                 "insertion.steps",

@@ -188,7 +188,8 @@ impl<const N: usize> Pipeline<N> {
     }
 
     /// One step of `world` (Algorithm 1, see the module docs), the constraint solve through
-    /// `transport`. The target moves to `params.insertion.target_arc(path length, step)`.
+    /// `transport`. The target moves to `params.insertion.next_arc(…)`: on schedule, or waiting
+    /// for a tip that lags behind it ([`next_target`]).
     ///
     /// # Errors
     /// [`SimError`]: a failed factorisation or solve, a capacity overflow, an invalid frame, a
@@ -218,9 +219,23 @@ impl<const N: usize> Pipeline<N> {
         params: &StepParams,
         transport: &mut dyn Transport<ROWS, N>,
     ) -> Result<StepReport, SimError> {
-        let c = params
-            .insertion
-            .target_arc(world.path.total_length(), world.steps);
+        let c = next_target(world, params);
+        self.step_to(world, params, transport, c)
+    }
+
+    /// [`Pipeline::step`] with the target at arc length `c` [mm] whatever the insertion
+    /// schedule says: a world driven open loop by another's joints (a model hiding the
+    /// support's motion) takes that world's target.
+    ///
+    /// # Errors
+    /// As [`Pipeline::step`].
+    pub fn step_to(
+        &mut self,
+        world: &mut World<N>,
+        params: &StepParams,
+        transport: &mut dyn Transport<ROWS, N>,
+        c: f64,
+    ) -> Result<StepReport, SimError> {
         let mut times = StageTimes::default();
         let mut t = Instant::now();
 
@@ -447,4 +462,18 @@ fn check_command<const N: usize>(
         None
     };
     why.map_or(Ok(()), |w| Err(SimError::Command(w)))
+}
+
+/// The target's arc length for the next step of `world` ([`Insertion::next_arc`]): the tip's
+/// lag behind the current target is taken along the path's tangent there (rest direction).
+pub fn next_target<const N: usize>(world: &World<N>, params: &StepParams) -> f64 {
+    let total = world.path.total_length();
+    let ins = &params.insertion;
+    let lag = if ins.follows_tip() && world.steps > 0 {
+        let tangent = world.path.at(world.c).1;
+        (world.target(world.c) - world.tip()).dot(&tangent)
+    } else {
+        0.0
+    };
+    ins.next_arc(total, world.steps, world.c, lag)
 }

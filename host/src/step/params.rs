@@ -45,6 +45,10 @@ pub struct Insertion {
     pub advance_per_step: f64,
     /// How the target moves.
     pub motion: TargetMotion,
+    /// How far the target may lead the tip along the path [mm] before it waits for the tip
+    /// ([`Insertion::next_arc`]); infinite: the target keeps to its schedule
+    /// ([`Insertion::target_arc`]) whatever the tip does.
+    pub max_lead: f64,
 }
 
 impl Default for Insertion {
@@ -52,6 +56,7 @@ impl Default for Insertion {
         Self {
             advance_per_step: 0.1,
             motion: TargetMotion::Insert,
+            max_lead: f64::INFINITY,
         }
     }
 }
@@ -64,7 +69,11 @@ impl Insertion {
     /// ```
     /// use needle_host::step::{Insertion, TargetMotion};
     ///
-    /// let there_and_back = Insertion { advance_per_step: 1.0, motion: TargetMotion::BackAndForth };
+    /// let there_and_back = Insertion {
+    ///     advance_per_step: 1.0,
+    ///     motion: TargetMotion::BackAndForth,
+    ///     ..Insertion::default()
+    /// };
     /// let c: Vec<f64> = (0..22).map(|k| there_and_back.target_arc(10.0, k)).collect();
     /// assert_eq!((c[8], c[9], c[10], c[19], c[20]), (9.0, 10.0, 9.0, 0.0, 1.0));
     /// assert_eq!(Insertion { motion: TargetMotion::Insert, ..there_and_back }.target_arc(10.0, 500), 10.0);
@@ -87,13 +96,55 @@ impl Insertion {
         }
     }
 
+    /// The target's arc length after the step that starts with the target at `c` [mm] and the
+    /// tip `lag` behind it along the path [mm] (the target minus the tip, along the path's
+    /// tangent there), step `k` (0-based) of a path of `total` length: on schedule
+    /// ([`Insertion::target_arc`]) with an infinite `max_lead` or back and forth; else `c`
+    /// advances by `advance_per_step` (never faster), up to the path's end, but waits while the
+    /// tip lags more than `max_lead` behind it. A tip held back (pressing on a stiff layer,
+    /// blocked by an obstacle, slower than the schedule) then does not leave its target running
+    /// away along the path: what the controller is asked stays a correction it can make.
+    ///
+    /// # Example
+    /// ```
+    /// use needle_host::step::Insertion;
+    ///
+    /// let follow = Insertion { advance_per_step: 0.1, max_lead: 0.5, ..Insertion::default() };
+    /// assert_eq!(follow.next_arc(10.0, 0, 0.0, 0.0), 0.1); // the first step: on schedule
+    /// assert!((follow.next_arc(10.0, 5, 3.0, 0.2) - 3.1).abs() < 1e-15); // the tip keeps up
+    /// assert_eq!(follow.next_arc(10.0, 5, 3.0, 0.6), 3.0); // it lags: the target waits
+    /// assert_eq!(follow.next_arc(10.0, 500, 10.0, 0.0), 10.0); // held at the end
+    /// let schedule = Insertion { max_lead: f64::INFINITY, ..follow };
+    /// assert!((schedule.next_arc(10.0, 5, 3.0, 0.6) - 0.6).abs() < 1e-15);
+    /// ```
+    pub fn next_arc(&self, total: f64, k: usize, c: f64, lag: f64) -> f64 {
+        if !self.follows_tip() || k == 0 {
+            return self.target_arc(total, k);
+        }
+        if lag > self.max_lead {
+            c
+        } else {
+            (c + self.advance_per_step).min(total)
+        }
+    }
+
+    /// Whether the target waits for the tip ([`Insertion::next_arc`]): a finite `max_lead` and
+    /// an insertion (a back-and-forth motion keeps to its schedule).
+    pub fn follows_tip(&self) -> bool {
+        self.max_lead.is_finite() && self.motion == TargetMotion::Insert
+    }
+
     /// Steps of a whole insertion on a path of `total` length: to the end, or there and back.
     ///
     /// # Example
     /// ```
     /// use needle_host::step::{Insertion, TargetMotion};
     ///
-    /// let i = Insertion { advance_per_step: 1.0, motion: TargetMotion::BackAndForth };
+    /// let i = Insertion {
+    ///     advance_per_step: 1.0,
+    ///     motion: TargetMotion::BackAndForth,
+    ///     ..Insertion::default()
+    /// };
     /// assert_eq!(i.default_steps(10.0), 20);
     /// ```
     pub fn default_steps(&self, total: f64) -> usize {
