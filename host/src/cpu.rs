@@ -42,7 +42,7 @@ mod tests {
         busy(0.02);
         let process = super::process_s() - p0;
         let thread = super::thread_s() - t0;
-        assert!(thread >= 0.02 && thread < 0.06, "thread {thread}");
+        assert!((0.02..0.06).contains(&thread), "thread {thread}");
         assert!(
             process >= 0.07,
             "process {process} must include the other thread's 0.05 s"

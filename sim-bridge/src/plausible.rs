@@ -128,7 +128,7 @@ impl Plausibility {
         let scale = base_scale(f);
         if let Some(prev) = self.base_scale {
             let ratio = scale / prev;
-            if !(ratio <= MAX_BASE_SCALE_CHANGE && ratio >= 1.0 / MAX_BASE_SCALE_CHANGE) {
+            if !(1.0 / MAX_BASE_SCALE_CHANGE..=MAX_BASE_SCALE_CHANGE).contains(&ratio) {
                 return Err(Implausible::BaseScale { ratio });
             }
         }

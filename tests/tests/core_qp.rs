@@ -24,8 +24,8 @@ fn solve_all() {
                 qp.hessian_mut()[i][k] = x;
             }
         }
-        for i in 0..n {
-            qp.linear_mut()[i] = -delta[i];
+        for (l, d) in qp.linear_mut().iter_mut().zip(&delta).take(n) {
+            *l = -d;
         }
         let zero = vec![0.0; n];
         let inf = vec![f64::INFINITY; n];

@@ -299,9 +299,9 @@ fn case3_wrist_singularity_start_steps_stay_within_the_speed_limits() {
     let mut prev = q0;
     let mut worst = 0.0f64;
     for x in &r.reports {
-        for i in 0..6 {
-            let lim = chain.limits()[i].max_speed * scene.robot.dt;
-            let ratio = (x.q[i] - prev[i]).abs() / lim;
+        for (i, (limit, p)) in chain.limits().iter().zip(&prev).enumerate() {
+            let lim = limit.max_speed * scene.robot.dt;
+            let ratio = (x.q[i] - p).abs() / lim;
             worst = worst.max(ratio);
             assert!(
                 ratio <= 1.0 + 1e-9,

@@ -298,7 +298,7 @@ impl Watchdog {
                 elements: self.elements,
             });
         }
-        (!(st.max_strain <= MAX_STRAIN)).then_some(StopReason::Strain {
+        (st.max_strain.is_nan() || st.max_strain > MAX_STRAIN).then_some(StopReason::Strain {
             strain: st.max_strain,
             element: st.element,
         })
