@@ -209,25 +209,15 @@ pub fn support_motion(scene: &Scene) -> Result<Option<SupportMotion>, SetupError
     }
 }
 
-/// The robot and the core's tuning of `scene` (what `needle-controller` needs): a robot of 6
-/// joints, the count the two-process mode runs.
+/// The robot of `N` joints and the core's tuning of `scene` (what `needle-controller` needs,
+/// and what `needle serve` fingerprints): call it with the scene's own count
+/// ([`Scene::joint_count`], through [`with_joints`]).
 ///
 /// # Errors
-/// [`SetupError::Robot`] when the scene's robot is not a 6-joint chain (a 7-joint arm runs in
-/// one process, `needle run`).
-pub fn core(scene: &Scene) -> Result<(Robot<6>, InverseParams), SetupError> {
-    let robot = scene
-        .robot()
-        .map_err(|(field, reason)| match scene.joint_count() {
-            Ok(n) if n != 6 => SetupError::Robot {
-                field,
-                reason: format!(
-                    "{reason}: the two-process mode (`needle serve`, `needle-controller`) runs \
-                 6-joint robots; run a {n}-joint arm in one process (`needle run`)"
-                ),
-            },
-            _ => robot_error((field, reason)),
-        })?;
+/// [`SetupError::Robot`] naming the field when the robot cannot be built, or is not a chain of
+/// `N` joints.
+pub fn core<const N: usize>(scene: &Scene) -> Result<(Robot<N>, InverseParams), SetupError> {
+    let robot = scene.robot_n::<N>().map_err(robot_error)?;
     Ok((robot, scene.inverse_params()))
 }
 

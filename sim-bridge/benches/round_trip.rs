@@ -53,12 +53,12 @@ fn config(tag: &str) -> BridgeConfig {
 /// Echo responder: answers each frame with a zero command carrying its sequence.
 fn echo(cfg: BridgeConfig, stop: Arc<AtomicBool>, ready: Arc<AtomicBool>) {
     let node = create_node("needle-bench-echo", &cfg).expect("node");
-    let sub = frame_service::<M>(&node, &cfg)
+    let sub = frame_service::<M, 6>(&node, &cfg)
         .expect("frames")
         .subscriber_builder()
         .create()
         .expect("subscriber");
-    let publ = command_service::<M>(&node, &cfg)
+    let publ = command_service::<M, 6>(&node, &cfg)
         .expect("commands")
         .publisher_builder()
         .create()

@@ -26,7 +26,7 @@ fn main() {
         max_frames: Some(100),
         ..ControllerOptions::default()
     };
-    let stats = run_controller::<16>(
+    let stats = run_controller::<16, 6>(
         DhChain::rv1a(),
         InverseParams::default(),
         &opts,

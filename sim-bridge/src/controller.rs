@@ -8,8 +8,9 @@
 //!   so on stderr, removes the resources of dead nodes (a killed host), and resumes as soon as a
 //!   host (the same one, or a restarted one with a new session) publishes again;
 //! - **a frame failing validation** (version, `m` above the capacity, non-finite values, group
-//!   table, …), **a sequence going backwards within a session**, or **another robot set-up**
-//!   (fingerprint): the frame is rejected, counted in [`ControllerStats`], never used;
+//!   table, …), **a sequence going backwards within a session**, **another joint count** (the
+//!   frame header's) or **another robot set-up** (fingerprint): the frame is rejected, counted
+//!   in [`ControllerStats`], never used;
 //! - **the same frame again** (a host that timed out republishes it): the cached answer is sent
 //!   again, the core does not step twice.
 //!
@@ -32,7 +33,7 @@ use iceoryx2::node::NodeWaitFailure;
 use iceoryx2::prelude::*;
 use needle_core::inverse::{Controller, InverseParams};
 use needle_core::kinematics::Robot;
-use needle_core::payload::{Command, ComplianceFrame, JOINTS, ValidationError};
+use needle_core::payload::{Command, ComplianceFrame, ValidationError};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
@@ -94,6 +95,13 @@ pub enum Rejection {
     },
     /// Its numbers are physically implausible for this set-up ([`Implausible`]).
     Implausible(Implausible),
+    /// It was built for a robot of another joint count (the frame header's `joints`).
+    JointCount {
+        /// The frame's joint count.
+        found: u32,
+        /// This controller's.
+        expected: u32,
+    },
     /// It was built for another robot or tuning (setup fingerprint).
     SetupMismatch {
         /// The frame's fingerprint.
@@ -118,6 +126,10 @@ impl fmt::Display for Rejection {
                 "frame of host session {found:016x} while following {followed:016x}"
             ),
             Self::Implausible(why) => write!(f, "implausible frame: {why}"),
+            Self::JointCount { found, expected } => write!(
+                f,
+                "frame built for a robot of {found} joints; this controller runs {expected} joints (start it with the host's scene)"
+            ),
             Self::SetupMismatch { found, expected } => write!(
                 f,
                 "frame built for another robot set-up (fingerprint {found:016x}, expected {expected:016x})"
@@ -139,7 +151,7 @@ pub struct ControllerStats {
     pub rejected_invalid: u64,
     /// Of which had a sequence going backwards.
     pub rejected_sequence: u64,
-    /// Of which came from another set-up.
+    /// Of which came from another set-up (another robot, joint count or tuning).
     pub rejected_setup: u64,
     /// Of which came from another host session while the followed one was alive.
     pub rejected_session: u64,
@@ -201,20 +213,21 @@ enum Verdict {
     Reject(Rejection),
 }
 
-/// The controller process's state (ports, core, counters).
-pub struct ControllerNode<const M: usize> {
+/// The controller process's state (ports, core, counters); a robot of `N` joints (6 by
+/// default, or 7).
+pub struct ControllerNode<const M: usize, const N: usize = 6> {
     node: Node<Ipc>,
-    frames: FrameSubscriber<M>,
-    commands: CommandPublisher<M>,
-    core: Box<Controller<M>>,
+    frames: FrameSubscriber<M, N>,
+    commands: CommandPublisher<M, N>,
+    core: Box<Controller<M, N>>,
     setup: u64,
     opts: ControllerOptions,
     session: Option<u64>,
     plausibility: Plausibility,
     last_sequence: u64,
-    last_answer: Box<Command<M>>,
+    last_answer: Box<Command<M, N>>,
     have_answer: bool,
-    last_q: Option<[f64; JOINTS]>,
+    last_q: Option<[f64; N]>,
     last_frame_at: Instant,
     holding: bool,
     last_cleanup: Instant,
@@ -225,26 +238,27 @@ fn dbg<E: fmt::Debug>(e: E) -> String {
     format!("{e:?}")
 }
 
-impl<const M: usize> ControllerNode<M> {
+impl<const M: usize, const N: usize> ControllerNode<M, N> {
     /// Connects a controller for `chain` and `params` (the same the host uses: the frames carry
-    /// their [`setup_fingerprint`]), cleaning the resources of dead nodes first.
+    /// their [`setup_fingerprint`] and joint count), cleaning the resources of dead nodes first.
     ///
     /// # Errors
+    /// [`TransportError::JointCount`] when a host of another joint count holds the services;
     /// [`TransportError::Ipc`] when a node, service or port cannot be created.
     pub fn connect(
-        chain: impl Into<Robot<JOINTS>>,
+        chain: impl Into<Robot<N>>,
         params: InverseParams,
         opts: &ControllerOptions,
     ) -> Result<Self, TransportError> {
-        let chain: Robot<JOINTS> = chain.into();
+        let chain: Robot<N> = chain.into();
         let (node, dead) = create_node_cleaning("needle-controller", &opts.bridge)?;
         let mut hung = 0;
-        let frames = frame_service_counting::<M>(&node, &opts.bridge, &mut hung)?
+        let frames = frame_service_counting::<M, N>(&node, &opts.bridge, &mut hung)?
             .subscriber_builder()
             .create()
             .map_err(dbg)
             .map_err(ipc_err("create frame subscriber"))?;
-        let commands = command_service_counting::<M>(&node, &opts.bridge, &mut hung)?
+        let commands = command_service_counting::<M, N>(&node, &opts.bridge, &mut hung)?
             .publisher_builder()
             .create()
             .map_err(dbg)
@@ -292,8 +306,15 @@ impl<const M: usize> ControllerNode<M> {
         }
     }
 
-    /// The verdict on a received frame: set-up, session, sequence, validity, plausibility.
-    fn judge(&self, h: &FrameHeader, f: &ComplianceFrame<M>) -> Verdict {
+    /// The verdict on a received frame: joint count, set-up, session, sequence, validity,
+    /// plausibility.
+    fn judge(&self, h: &FrameHeader, f: &ComplianceFrame<M, N>) -> Verdict {
+        if h.joints as usize != N {
+            return Verdict::Reject(Rejection::JointCount {
+                found: h.joints,
+                expected: N as u32,
+            });
+        }
         if h.setup != self.setup {
             return Verdict::Reject(Rejection::SetupMismatch {
                 found: h.setup,
@@ -353,7 +374,9 @@ impl<const M: usize> ControllerNode<M> {
             Rejection::SequenceBackwards { .. } | Rejection::SequenceJump { .. } => {
                 self.stats.rejected_sequence += 1;
             }
-            Rejection::SetupMismatch { .. } => self.stats.rejected_setup += 1,
+            Rejection::SetupMismatch { .. } | Rejection::JointCount { .. } => {
+                self.stats.rejected_setup += 1;
+            }
             Rejection::OtherSession { .. } => self.stats.rejected_session += 1,
             Rejection::Implausible(_) => self.stats.rejected_implausible += 1,
         }
@@ -370,7 +393,7 @@ impl<const M: usize> ControllerNode<M> {
         &mut self,
         kind: CommandKind,
         session: u64,
-        fill: impl FnOnce(&mut Command<M>),
+        fill: impl FnOnce(&mut Command<M, N>),
     ) -> Result<(), TransportError> {
         let header = CommandHeader {
             session,
@@ -574,12 +597,12 @@ impl<const M: usize> ControllerNode<M> {
 ///
 /// # Errors
 /// As [`ControllerNode::connect`] and [`ControllerNode::run`].
-pub fn run_controller<const M: usize>(
-    chain: impl Into<Robot<JOINTS>>,
+pub fn run_controller<const M: usize, const N: usize>(
+    chain: impl Into<Robot<N>>,
     params: InverseParams,
     opts: &ControllerOptions,
     stop: &AtomicBool,
 ) -> Result<ControllerStats, TransportError> {
-    let mut node = ControllerNode::<M>::connect(chain, params, opts)?;
+    let mut node = ControllerNode::<M, N>::connect(chain, params, opts)?;
     node.run(stop)
 }

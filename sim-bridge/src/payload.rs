@@ -9,61 +9,105 @@
 //! only — any bit pattern is a valid value, which is why every received frame is still checked
 //! with [`ComplianceFrame::validate`]).
 //!
-//! The iceoryx2 type names are versioned ([`FRAME_TYPE_NAME`], [`COMMAND_TYPE_NAME`]); iceoryx2
-//! also compares size and alignment when a service is opened, so two builds with different row
-//! capacities `M` refuse to talk to each other instead of misreading each other.
+//! The iceoryx2 type names are versioned and say the joint count `N` ([`frame_type_name`],
+//! [`command_type_name`]: `needle.ComplianceFrame.v2` and `needle.Command.v2` for 6 joints,
+//! `needle.ComplianceFrame.v2.j7` and `needle.Command.v2.j7` for 7); iceoryx2 compares the type
+//! name, size and alignment when a service is opened, so two builds with different row
+//! capacities `M`, or a host and a controller of different joint counts, refuse to talk to each
+//! other instead of misreading each other ([`crate::shm`] says which joint count the service
+//! carries). The frame header carries the joint count too ([`FrameHeader::joints`]), and the
+//! set-up fingerprint hashes it ([`setup_fingerprint`]).
 
 use core::fmt::Write as _;
 use iceoryx2::prelude::ZeroCopySend;
 use needle_core::Zeroable;
 use needle_core::inverse::InverseParams;
 use needle_core::kinematics::Robot;
-use needle_core::payload::{
-    COMMAND_TYPE_NAME, Command, ComplianceFrame, FRAME_TYPE_NAME, JOINTS, Payload,
-};
+use needle_core::payload::{COMMAND_TYPE_NAME, Command, ComplianceFrame, FRAME_TYPE_NAME, Payload};
+
+/// The joint counts the bridge carries: 6 (the RV-1A, the KR 16-2, …) and 7 (the LBR iiwa, …).
+pub const BRIDGE_JOINTS: [usize; 2] = [6, 7];
+
+/// The iceoryx2 type name of a frame of `joints` joints: [`FRAME_TYPE_NAME`]
+/// (`needle.ComplianceFrame.v2`) for 6, `needle.ComplianceFrame.v2.j7` for 7; `None` for a
+/// count the bridge does not carry ([`BRIDGE_JOINTS`]).
+pub const fn frame_type_name(joints: usize) -> Option<&'static str> {
+    match joints {
+        6 => Some(FRAME_TYPE_NAME),
+        7 => Some("needle.ComplianceFrame.v2.j7"),
+        _ => None,
+    }
+}
+
+/// The iceoryx2 type name of a command of `joints` joints: [`COMMAND_TYPE_NAME`]
+/// (`needle.Command.v2`) for 6, `needle.Command.v2.j7` for 7; `None` otherwise.
+pub const fn command_type_name(joints: usize) -> Option<&'static str> {
+    match joints {
+        6 => Some(COMMAND_TYPE_NAME),
+        7 => Some("needle.Command.v2.j7"),
+        _ => None,
+    }
+}
+
+/// The joint count a payload type name of [`frame_type_name`] or [`command_type_name`] stands
+/// for (`None`: not one of the bridge's).
+pub fn joints_of_type_name(name: &str) -> Option<usize> {
+    BRIDGE_JOINTS
+        .into_iter()
+        .find(|&n| frame_type_name(n) == Some(name) || command_type_name(n) == Some(name))
+}
+
+/// The type name of `name(N)`, a compile-time error for a joint count the bridge does not
+/// carry.
+const fn known(name: Option<&'static str>) -> &'static str {
+    match name {
+        Some(n) => n,
+        None => panic!("the bridge carries robots of 6 or 7 joints"),
+    }
+}
 
 /// A compliance frame as an iceoryx2 payload (host → core), layout identical to
-/// [`ComplianceFrame<M>`].
+/// [`ComplianceFrame<M, N>`]; `N` joints, 6 (default) or 7.
 #[derive(Debug)]
 #[repr(transparent)]
-pub struct FramePayload<const M: usize>(pub ComplianceFrame<M>);
+pub struct FramePayload<const M: usize, const N: usize = 6>(pub ComplianceFrame<M, N>);
 
-// SAFETY: `ComplianceFrame<M>` is `#[repr(C)]` and holds only `u32`, `u64`, `f64` and fixed
+// SAFETY: `ComplianceFrame<M, N>` is `#[repr(C)]` and holds only `u32`, `u64`, `f64` and fixed
 // arrays of those (`RowGroup` included, itself `#[repr(C)]` of the same): no pointer, no
 // reference, no process-local handle, every bit pattern valid. The newtype is transparent.
-unsafe impl<const M: usize> ZeroCopySend for FramePayload<M> {
+unsafe impl<const M: usize, const N: usize> ZeroCopySend for FramePayload<M, N> {
     unsafe fn type_name() -> &'static str {
-        FRAME_TYPE_NAME
+        const { known(frame_type_name(N)) }
     }
 }
 
-/// A command as an iceoryx2 payload (core → host), layout identical to [`Command<M>`].
+/// A command as an iceoryx2 payload (core → host), layout identical to [`Command<M, N>`].
 #[derive(Debug)]
 #[repr(transparent)]
-pub struct CommandPayload<const M: usize>(pub Command<M>);
+pub struct CommandPayload<const M: usize, const N: usize = 6>(pub Command<M, N>);
 
-// SAFETY: as for `FramePayload`: `Command<M>` and `SolverReport` are `#[repr(C)]` integers,
-// floats and fixed arrays only.
-unsafe impl<const M: usize> ZeroCopySend for CommandPayload<M> {
+// SAFETY: as for `FramePayload`: `Command<M, N>` and `SolverReport<N>` are `#[repr(C)]`
+// integers, floats and fixed arrays only.
+unsafe impl<const M: usize, const N: usize> ZeroCopySend for CommandPayload<M, N> {
     unsafe fn type_name() -> &'static str {
-        COMMAND_TYPE_NAME
+        const { known(command_type_name(N)) }
     }
 }
 
-// SAFETY: `#[repr(transparent)]` over `ComplianceFrame<M>`, which is `Zeroable`.
-unsafe impl<const M: usize> Zeroable for FramePayload<M> {}
-// SAFETY: `#[repr(transparent)]` over `Command<M>`, which is `Zeroable`.
-unsafe impl<const M: usize> Zeroable for CommandPayload<M> {}
+// SAFETY: `#[repr(transparent)]` over `ComplianceFrame<M, N>`, which is `Zeroable`.
+unsafe impl<const M: usize, const N: usize> Zeroable for FramePayload<M, N> {}
+// SAFETY: `#[repr(transparent)]` over `Command<M, N>`, which is `Zeroable`.
+unsafe impl<const M: usize, const N: usize> Zeroable for CommandPayload<M, N> {}
 
 // The core's initial state (all zero, layout version written), so that a loaned sample is
 // initialised in place as the core's `init_in_place` does ([`crate::shm::loan_initialised`]).
-impl<const M: usize> Payload for FramePayload<M> {
+impl<const M: usize, const N: usize> Payload for FramePayload<M, N> {
     fn stamp(&mut self) {
         self.0.stamp();
     }
 }
 
-impl<const M: usize> Payload for CommandPayload<M> {
+impl<const M: usize, const N: usize> Payload for CommandPayload<M, N> {
     fn stamp(&mut self) {
         self.0.stamp();
     }
@@ -71,7 +115,7 @@ impl<const M: usize> Payload for CommandPayload<M> {
 
 /// User header of every frame sample.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, ZeroCopySend)]
-#[type_name("needle.FrameHeader.v1")]
+#[type_name("needle.FrameHeader.v2")]
 #[repr(C)]
 pub struct FrameHeader {
     /// Identifier of the host run that published the frame (new at every host start). Frame
@@ -80,6 +124,11 @@ pub struct FrameHeader {
     /// [`setup_fingerprint`] of the robot chain and inverse tuning the host expects the core to
     /// use; a controller configured differently rejects the frame.
     pub setup: u64,
+    /// The robot's joint count the frame was built for (the payload's `N`); a controller of
+    /// another count rejects the frame.
+    pub joints: u32,
+    /// Reserved, 0.
+    pub reserved: u32,
 }
 
 /// What a command sample is.
@@ -117,14 +166,18 @@ pub struct CommandHeader {
     pub reserved: u32,
 }
 
-/// A 64-bit fingerprint of a robot chain and inverse tuning (FNV-1a over their `Debug` text,
-/// which prints every `f64` exactly): both processes compute it from their own set-up, and a
-/// controller refuses frames from a host that expects another robot or another tuning.
-pub fn setup_fingerprint(chain: &(impl Into<Robot<JOINTS>> + Copy), params: &InverseParams) -> u64 {
-    let chain: Robot<JOINTS> = (*chain).into();
+/// A 64-bit fingerprint of a robot chain of `N` joints and inverse tuning (FNV-1a over the
+/// joint count and their `Debug` text, which prints every `f64` exactly): both processes
+/// compute it from their own set-up, and a controller refuses frames from a host that expects
+/// another robot, another joint count or another tuning.
+pub fn setup_fingerprint<const N: usize>(
+    chain: &(impl Into<Robot<N>> + Copy),
+    params: &InverseParams,
+) -> u64 {
+    let chain: Robot<N> = (*chain).into();
     let mut text = String::new();
     // Writing into a String cannot fail.
-    let _ = write!(text, "{chain:?}|{params:?}");
+    let _ = write!(text, "joints {N}|{chain:?}|{params:?}");
     fnv1a(text.as_bytes())
 }
 
@@ -156,7 +209,10 @@ pub fn new_session_id() -> u64 {
 /// the `m` used columns of `C` and the used rows of `δ_free`. The unused entries of `dst` keep
 /// their zeros. `m` is clamped to the capacity, so a corrupt `src` cannot make it read out of
 /// bounds.
-pub fn copy_used<const M: usize>(src: &ComplianceFrame<M>, dst: &mut ComplianceFrame<M>) {
+pub fn copy_used<const M: usize, const N: usize>(
+    src: &ComplianceFrame<M, N>,
+    dst: &mut ComplianceFrame<M, N>,
+) {
     let m = src.rows().min(M);
     let g = (src.group_count as usize).min(M);
     dst.version = src.version;
@@ -217,7 +273,23 @@ mod tests {
                 <CommandPayload<8> as ZeroCopySend>::type_name(),
                 "needle.Command.v2"
             );
+            assert_eq!(
+                <FramePayload<8, 7> as ZeroCopySend>::type_name(),
+                "needle.ComplianceFrame.v2.j7"
+            );
+            assert_eq!(
+                <CommandPayload<8, 7> as ZeroCopySend>::type_name(),
+                "needle.Command.v2.j7"
+            );
         }
+        assert_eq!(joints_of_type_name("needle.ComplianceFrame.v2"), Some(6));
+        assert_eq!(joints_of_type_name("needle.Command.v2.j7"), Some(7));
+        assert_eq!(joints_of_type_name("needle.Command.v1"), None);
+        // A 7-joint frame is another layout (iceoryx2 compares sizes as well as names).
+        assert_ne!(
+            core::mem::size_of::<FramePayload<192, 7>>(),
+            core::mem::size_of::<FramePayload<192, 6>>()
+        );
     }
 
     #[test]
@@ -267,6 +339,14 @@ mod tests {
         c2.joints[2].a += 1.0;
         assert_ne!(setup_fingerprint(&chain, &p), setup_fingerprint(&c2, &p));
         assert_ne!(new_session_id(), new_session_id());
+        // The joint count is part of the fingerprint.
+        let seven = DhChain::<7> {
+            joints: [chain.joints[0]; 7],
+            base: chain.base,
+            tool: chain.tool,
+            limits: [chain.limits[0]; 7],
+        };
+        assert_ne!(setup_fingerprint(&seven, &p), setup_fingerprint(&chain, &p));
         assert_eq!(CommandKind::from_raw(2), Some(CommandKind::Hold));
         assert_eq!(CommandKind::from_raw(0), None);
     }

@@ -92,7 +92,7 @@ pub struct Plausibility {
 
 /// Largest translational diagonal entry of the base block of `W` (the needle's own compliance
 /// at its base) [mm/N].
-fn base_scale<const M: usize>(f: &ComplianceFrame<M>) -> f64 {
+fn base_scale<const M: usize, const N: usize>(f: &ComplianceFrame<M, N>) -> f64 {
     (0..3).fold(0.0, |a: f64, i| a.max(f.w[i][i]))
 }
 
@@ -101,7 +101,10 @@ impl Plausibility {
     ///
     /// # Errors
     /// The first implausible number.
-    pub fn check<const M: usize>(&self, f: &ComplianceFrame<M>) -> Result<f64, Implausible> {
+    pub fn check<const M: usize, const N: usize>(
+        &self,
+        f: &ComplianceFrame<M, N>,
+    ) -> Result<f64, Implausible> {
         let m = f.rows();
         if let Some(row) = (0..m).find(|&i| f.delta_free[i].abs() > MAX_VIOLATION_MM) {
             let value = f.delta_free[row];

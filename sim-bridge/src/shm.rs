@@ -3,7 +3,12 @@
 //! Two services per bridge instance, named `<instance>/needle.ComplianceFrame.v2` and
 //! `<instance>/needle.Command.v2` (the instance defaults to `needle`; tests use a unique one so
 //! that parallel runs never meet). Both sides open-or-create them with the same settings
-//! ([`frame_service`], [`command_service`]).
+//! ([`frame_service`], [`command_service`]), for a robot of `N` joints (6 or 7): the service
+//! names are the same for every joint count, the payload types are not
+//! ([`crate::payload::frame_type_name`]), so a host and a controller of different joint counts
+//! meet on the same services and the second to open them is refused
+//! ([`TransportError::JointCount`], naming both counts) instead of waiting for frames that
+//! never come.
 //!
 //! Zero copy: the host loans an uninitialised frame sample, initialises it in place
 //! ([`loan_initialised`]) and writes the frame into it ([`SharedMemoryHost::publish_with`]);
@@ -20,6 +25,7 @@
 
 use crate::payload::{
     CommandHeader, CommandKind, CommandPayload, FrameHeader, FramePayload, copy_used,
+    joints_of_type_name,
 };
 use crate::transport::{ExchangeReport, Transport, TransportError};
 use core::time::Duration;
@@ -97,14 +103,18 @@ impl BridgeConfig {
 /// The iceoryx2 service flavour used: inter-process, single-threaded ports.
 pub type Ipc = ipc::Service;
 
-/// Frame publisher port.
-pub type FramePublisher<const M: usize> = Publisher<Ipc, FramePayload<M>, FrameHeader>;
+/// Frame publisher port (`N` joints, 6 by default).
+pub type FramePublisher<const M: usize, const N: usize = 6> =
+    Publisher<Ipc, FramePayload<M, N>, FrameHeader>;
 /// Frame subscriber port.
-pub type FrameSubscriber<const M: usize> = Subscriber<Ipc, FramePayload<M>, FrameHeader>;
+pub type FrameSubscriber<const M: usize, const N: usize = 6> =
+    Subscriber<Ipc, FramePayload<M, N>, FrameHeader>;
 /// Command publisher port.
-pub type CommandPublisher<const M: usize> = Publisher<Ipc, CommandPayload<M>, CommandHeader>;
+pub type CommandPublisher<const M: usize, const N: usize = 6> =
+    Publisher<Ipc, CommandPayload<M, N>, CommandHeader>;
 /// Command subscriber port.
-pub type CommandSubscriber<const M: usize> = Subscriber<Ipc, CommandPayload<M>, CommandHeader>;
+pub type CommandSubscriber<const M: usize, const N: usize = 6> =
+    Subscriber<Ipc, CommandPayload<M, N>, CommandHeader>;
 
 /// Loans a sample from `publisher`, writes `header` and initialises the payload in place (all
 /// zero, current version: [`Payload`]), so that it never transits the stack. The one place
@@ -202,26 +212,28 @@ pub(crate) fn create_node_cleaning(
 /// service left half-created by a killed process (see [`open_recovering`]).
 ///
 /// # Errors
-/// [`TransportError::Ipc`], e.g. when the service exists with an incompatible payload (another
-/// capacity `M` or layout version).
-pub fn frame_service<const M: usize>(
+/// [`TransportError::JointCount`] when the service carries frames of another joint count (the
+/// other process runs another robot); [`TransportError::Ipc`], e.g. when the service exists
+/// with another incompatible payload (another capacity `M` or layout version).
+pub fn frame_service<const M: usize, const N: usize>(
     node: &Node<Ipc>,
     cfg: &BridgeConfig,
-) -> Result<PortFactory<Ipc, FramePayload<M>, FrameHeader>, TransportError> {
+) -> Result<PortFactory<Ipc, FramePayload<M, N>, FrameHeader>, TransportError> {
     frame_service_counting(node, cfg, &mut 0)
 }
 
-pub(crate) fn frame_service_counting<const M: usize>(
+pub(crate) fn frame_service_counting<const M: usize, const N: usize>(
     node: &Node<Ipc>,
     cfg: &BridgeConfig,
     removed: &mut u64,
-) -> Result<PortFactory<Ipc, FramePayload<M>, FrameHeader>, TransportError> {
+) -> Result<PortFactory<Ipc, FramePayload<M, N>, FrameHeader>, TransportError> {
     let name = ServiceName::new(&cfg.frame_service_name())
         .map_err(dbg)
         .map_err(ipc_err("frame service name"))?;
-    open_recovering(node, &name, "open frame service", removed, || {
+    let expected = Expected::of::<FramePayload<M, N>>(N);
+    open_recovering(node, &name, "open frame service", expected, removed, || {
         node.service_builder(&name)
-            .publish_subscribe::<FramePayload<M>>()
+            .publish_subscribe::<FramePayload<M, N>>()
             .user_header::<FrameHeader>()
             // One host per instance: a second publisher (a stale host, a forger) is refused.
             .max_publishers(1)
@@ -239,34 +251,107 @@ pub(crate) fn frame_service_counting<const M: usize>(
 ///
 /// # Errors
 /// As [`frame_service`].
-pub fn command_service<const M: usize>(
+pub fn command_service<const M: usize, const N: usize>(
     node: &Node<Ipc>,
     cfg: &BridgeConfig,
-) -> Result<PortFactory<Ipc, CommandPayload<M>, CommandHeader>, TransportError> {
+) -> Result<PortFactory<Ipc, CommandPayload<M, N>, CommandHeader>, TransportError> {
     command_service_counting(node, cfg, &mut 0)
 }
 
-pub(crate) fn command_service_counting<const M: usize>(
+pub(crate) fn command_service_counting<const M: usize, const N: usize>(
     node: &Node<Ipc>,
     cfg: &BridgeConfig,
     removed: &mut u64,
-) -> Result<PortFactory<Ipc, CommandPayload<M>, CommandHeader>, TransportError> {
+) -> Result<PortFactory<Ipc, CommandPayload<M, N>, CommandHeader>, TransportError> {
     let name = ServiceName::new(&cfg.command_service_name())
         .map_err(dbg)
         .map_err(ipc_err("command service name"))?;
-    open_recovering(node, &name, "open command service", removed, || {
-        node.service_builder(&name)
-            .publish_subscribe::<CommandPayload<M>>()
-            .user_header::<CommandHeader>()
-            // One controller per instance.
-            .max_publishers(1)
-            .max_subscribers(2)
-            .history_size(0)
-            .subscriber_max_buffer_size(8)
-            .subscriber_max_borrowed_samples(2)
-            .enable_safe_overflow(true)
-            .open_or_create()
-    })
+    let expected = Expected::of::<CommandPayload<M, N>>(N);
+    open_recovering(
+        node,
+        &name,
+        "open command service",
+        expected,
+        removed,
+        || {
+            node.service_builder(&name)
+                .publish_subscribe::<CommandPayload<M, N>>()
+                .user_header::<CommandHeader>()
+                // One controller per instance.
+                .max_publishers(1)
+                .max_subscribers(2)
+                .history_size(0)
+                .subscriber_max_buffer_size(8)
+                .subscriber_max_borrowed_samples(2)
+                .enable_safe_overflow(true)
+                .open_or_create()
+        },
+    )
+}
+
+/// The payload a side opens a service with: its iceoryx2 type name, size and joint count.
+#[derive(Clone, Copy, Debug)]
+struct Expected {
+    type_name: &'static str,
+    size: usize,
+    joints: usize,
+}
+
+impl Expected {
+    fn of<P: ZeroCopySend>(joints: usize) -> Self {
+        Self {
+            // SAFETY: only reads the type's name.
+            type_name: unsafe { <P as ZeroCopySend>::type_name() },
+            size: core::mem::size_of::<P>(),
+            joints,
+        }
+    }
+}
+
+/// The error for a service that exists with another payload type than `expected`: the other
+/// side's joint count when its payload says one ([`TransportError::JointCount`]), else what it
+/// carries (another row capacity or layout version).
+fn incompatible(
+    node: &Node<Ipc>,
+    name: &ServiceName,
+    what: &'static str,
+    expected: Expected,
+    e: &PublishSubscribeOpenOrCreateError,
+) -> TransportError {
+    let found = match Ipc::details(name, node.config(), MessagingPattern::PublishSubscribe) {
+        Ok(Some(d)) => {
+            let t = &d
+                .static_details
+                .publish_subscribe()
+                .message_type_details()
+                .payload;
+            Some((t.type_name().to_string(), t.size()))
+        }
+        _ => None,
+    };
+    let Some((type_name, size)) = found else {
+        return TransportError::Ipc {
+            what,
+            detail: format!(
+                "{e:?}: the service \"{name}\" exists with another payload than `{}` ({} joints)",
+                expected.type_name, expected.joints
+            ),
+        };
+    };
+    match joints_of_type_name(&type_name) {
+        Some(k) if k != expected.joints => TransportError::JointCount {
+            service: name.to_string(),
+            found: k,
+            expected: expected.joints,
+        },
+        _ => TransportError::Ipc {
+            what,
+            detail: format!(
+                "{e:?}: the service \"{name}\" carries `{type_name}` of {size} bytes, this side `{}` of {} bytes (another row capacity or layout version: build both sides from the same sources)",
+                expected.type_name, expected.size
+            ),
+        },
+    }
 }
 
 /// How often a transient open failure (another process cleaning a dead node's share of the
@@ -285,10 +370,14 @@ const TRANSIENT_RETRIES: u32 = 20;
 /// - **Transient states** while another process removes a dead node's share of the service at
 ///   the same moment (`ServiceInCorruptedState`, `IsMarkedForDestruction`, `SystemInFlux`,
 ///   `DoesNotExist` on open): retried up to [`TRANSIENT_RETRIES`] times.
+///
+/// A service that exists with another payload type is refused ([`incompatible`]: the joint
+/// counts of both sides when they differ).
 fn open_recovering<T>(
     node: &Node<Ipc>,
     name: &ServiceName,
     what: &'static str,
+    expected: Expected,
     removed: &mut u64,
     mut open: impl FnMut() -> Result<T, PublishSubscribeOpenOrCreateError>,
 ) -> Result<T, TransportError> {
@@ -329,6 +418,8 @@ fn open_recovering<T>(
                     });
                 }
             }
+        } else if matches!(e, E::PublishSubscribeOpenError(O::IncompatibleTypes)) {
+            return Err(incompatible(node, name, what, expected, &e));
         } else if transient && retries < TRANSIENT_RETRIES {
             retries += 1;
             std::thread::sleep(Duration::from_millis(10));
@@ -403,32 +494,34 @@ pub struct HostStats {
 }
 
 /// The host's end: publishes frames in place and waits, lock-step, for the command answering
-/// each one.
-pub struct SharedMemoryHost<const M: usize> {
+/// each one; a robot of `N` joints (6 by default, or 7).
+pub struct SharedMemoryHost<const M: usize, const N: usize = 6> {
     node: Node<Ipc>,
-    frames: FramePublisher<M>,
-    commands: CommandSubscriber<M>,
+    frames: FramePublisher<M, N>,
+    commands: CommandSubscriber<M, N>,
     header: FrameHeader,
     cfg: BridgeConfig,
     stats: HostStats,
 }
 
-impl<const M: usize> SharedMemoryHost<M> {
+impl<const M: usize, const N: usize> SharedMemoryHost<M, N> {
     /// Connects a host: cleans the resources of dead nodes, opens both services, creates the
     /// ports, and starts a new session. `setup` is the [`crate::setup_fingerprint`] of the robot
-    /// and tuning the controller must use.
+    /// and tuning the controller must use; every frame's header carries it and the joint count
+    /// `N`.
     ///
     /// # Errors
-    /// [`TransportError::Ipc`] when a node, service or port cannot be created.
+    /// [`TransportError::JointCount`] when a controller of another joint count holds the
+    /// services; [`TransportError::Ipc`] when a node, service or port cannot be created.
     pub fn connect(cfg: &BridgeConfig, setup: u64) -> Result<Self, TransportError> {
         let (node, dead_nodes_cleaned) = create_node_cleaning("needle-host", cfg)?;
         let mut hung_services_removed = 0;
-        let frames = frame_service_counting::<M>(&node, cfg, &mut hung_services_removed)?
+        let frames = frame_service_counting::<M, N>(&node, cfg, &mut hung_services_removed)?
             .publisher_builder()
             .create()
             .map_err(dbg)
             .map_err(ipc_err("create frame publisher"))?;
-        let commands = command_service_counting::<M>(&node, cfg, &mut hung_services_removed)?
+        let commands = command_service_counting::<M, N>(&node, cfg, &mut hung_services_removed)?
             .subscriber_builder()
             .create()
             .map_err(dbg)
@@ -440,6 +533,8 @@ impl<const M: usize> SharedMemoryHost<M> {
             header: FrameHeader {
                 session: crate::payload::new_session_id(),
                 setup,
+                joints: N as u32,
+                reserved: 0,
             },
             cfg: cfg.clone(),
             stats: HostStats {
@@ -473,7 +568,7 @@ impl<const M: usize> SharedMemoryHost<M> {
     /// [`TransportError::Ipc`] when loaning or sending fails.
     pub fn publish_with(
         &mut self,
-        fill: impl FnOnce(&mut ComplianceFrame<M>),
+        fill: impl FnOnce(&mut ComplianceFrame<M, N>),
     ) -> Result<u64, TransportError> {
         let mut sample = loan_initialised(&self.frames, self.header, "loan frame")?;
         let frame = &mut sample.payload_mut().0;
@@ -489,7 +584,7 @@ impl<const M: usize> SharedMemoryHost<M> {
     ///
     /// # Errors
     /// As [`Self::publish_with`].
-    pub fn publish(&mut self, frame: &ComplianceFrame<M>) -> Result<u64, TransportError> {
+    pub fn publish(&mut self, frame: &ComplianceFrame<M, N>) -> Result<u64, TransportError> {
         self.publish_with(|dst| copy_used(frame, dst))
     }
 
@@ -502,7 +597,7 @@ impl<const M: usize> SharedMemoryHost<M> {
     pub fn wait_command(
         &mut self,
         sequence: u64,
-        cmd: &mut Command<M>,
+        cmd: &mut Command<M, N>,
     ) -> Result<ExchangeReport, TransportError> {
         let start = Instant::now();
         let mut report = ExchangeReport::default();
@@ -560,13 +655,13 @@ pub(crate) fn pause(node: &Node<Ipc>, wait: Wait) -> Result<(), TransportError> 
     }
 }
 
-impl<const M: usize> Transport<M> for SharedMemoryHost<M> {
+impl<const M: usize, const N: usize> Transport<M, N> for SharedMemoryHost<M, N> {
     /// Publishes `frame` (one copy of its used part, see [`SharedMemoryHost::publish`]) and waits
     /// for the command answering it.
     fn exchange(
         &mut self,
-        frame: &ComplianceFrame<M>,
-        cmd: &mut Command<M>,
+        frame: &ComplianceFrame<M, N>,
+        cmd: &mut Command<M, N>,
     ) -> Result<ExchangeReport, TransportError> {
         let start = Instant::now();
         let sequence = self.publish(frame)?;

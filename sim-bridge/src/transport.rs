@@ -41,6 +41,17 @@ pub enum TransportError {
     Core(StepError),
     /// A payload failed validation before it was sent.
     Invalid(ValidationError),
+    /// The other side of the bridge runs a robot of another joint count: the service exists
+    /// with the payload of `found` joints, this side's robot has `expected` (refused at connect;
+    /// a host and a controller must be started with the same scene).
+    JointCount {
+        /// The service's name.
+        service: String,
+        /// Joints of the other side's payload.
+        found: usize,
+        /// Joints of this side's robot.
+        expected: usize,
+    },
     /// The shared-memory middleware failed (creating a node, a service or a port, loaning,
     /// sending, receiving).
     Ipc {
@@ -61,6 +72,14 @@ impl fmt::Display for TransportError {
             ),
             Self::Core(e) => write!(f, "core: {e}"),
             Self::Invalid(e) => write!(f, "invalid payload: {e}"),
+            Self::JointCount {
+                service,
+                found,
+                expected,
+            } => write!(
+                f,
+                "shared memory: the service \"{service}\" carries a robot of {found} joints, this side runs {expected} joints: start `needle serve` and `needle-controller` with the same scene (or another `--instance`)"
+            ),
             Self::Ipc { what, detail } => write!(f, "shared memory: {what}: {detail}"),
         }
     }

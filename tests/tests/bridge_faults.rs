@@ -273,7 +273,8 @@ fn stale_resources_of_a_killed_process_are_removed_at_start() {
     quiet_iceoryx();
     let (instance, node) = kill_a_connected_host(KILLED, "stale");
     // The killed host's frame publisher is gone from the service.
-    let frames = needle_bridge::shm::frame_service::<M>(&node, &config(&instance)).expect("open");
+    let frames =
+        needle_bridge::shm::frame_service::<M, 6>(&node, &config(&instance)).expect("open");
     assert_eq!(frames.dynamic_config().number_of_publishers(), 0);
     drop(frames);
     // And a new host can take the service over.

@@ -39,7 +39,7 @@ fn controller_role() {
         max_frames: Some(STEPS as u64),
         verbose: true,
     };
-    let stats = run_controller::<ROWS>(
+    let stats = run_controller::<ROWS, 6>(
         s.robot().expect("robot"),
         s.inverse_params(),
         &opts,

@@ -175,7 +175,7 @@ fn sigstop_of_the_controller_for_2_s_is_survived() {
             verbose: false,
             ..ControllerOptions::default()
         };
-        let st = run_controller::<ROWS>(
+        let st = run_controller::<ROWS, 6>(
             s.robot().expect("robot"),
             s.inverse_params(),
             &opts,

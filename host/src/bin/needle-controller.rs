@@ -5,10 +5,11 @@
 //! 50 ms) it holds the robot (re-commands the last joints) and resumes when a host publishes
 //! again.
 //!
-//! It reads the same scene as `needle serve` only to build the robot chain and the inverse
-//! tuning (`needle_host::setup::core`); the frames carry a fingerprint of that
-//! set-up, and a controller started with another scene rejects them. At run time it uses
-//! `needle-core` and `needle-bridge` only.
+//! It reads the same scene as `needle serve` only to build the robot chain (6 or 7 joints, the
+//! scene's) and the inverse tuning (`needle_host::setup::core`); the frames carry a fingerprint
+//! of that set-up and the joint count, and a controller started with another scene rejects them
+//! (one of another joint count is refused at connect: the two sides' payloads differ). At run
+//! time it uses `needle-core` and `needle-bridge` only.
 //!
 //! ```sh
 //! needle serve complex            # terminal 1
@@ -17,7 +18,8 @@
 
 use clap::Parser;
 use needle_bridge::{BridgeConfig, ControllerOptions, run_controller};
-use needle_host::error::chain;
+use needle_host::error::{SetupError, chain};
+use needle_host::joints::{WithJoints, with_joints};
 use needle_host::scene::Scene;
 use needle_host::setup;
 use needle_host::step::ROWS;
@@ -88,28 +90,60 @@ fn main() -> ExitCode {
         max_frames: cli.max_frames,
         verbose: !cli.quiet,
     };
+    let n = match scene.joint_count() {
+        Ok(n) => n,
+        Err((field, reason)) => {
+            eprintln!("error: {}", chain(&SetupError::Robot { field, reason }));
+            return ExitCode::FAILURE;
+        }
+    };
     eprintln!(
-        "needle-controller: scene {} · {} Hz · deadline {} ms · frames from {}",
+        "needle-controller: scene {} · {n} joints · {} Hz · deadline {} ms · frames from {}",
         scene.name,
         opts.rate_hz,
         cli.deadline_ms,
         opts.bridge.frame_service_name()
     );
-    let (robot, inverse) = match setup::core(&scene) {
-        Ok(c) => c,
-        Err(e) => {
-            eprintln!("error: {}", chain(&e));
-            return ExitCode::FAILURE;
-        }
-    };
-    match run_controller::<ROWS>(robot, inverse, &opts, &AtomicBool::new(false)) {
-        Ok(stats) => {
-            println!("needle-controller: {stats}");
-            ExitCode::SUCCESS
-        }
-        Err(e) => {
-            eprintln!("error: {}", chain(&e));
-            ExitCode::FAILURE
+    with_joints(
+        n,
+        Controller {
+            scene: &scene,
+            opts: &opts,
+        },
+    )
+    .unwrap_or_else(|| {
+        eprintln!(
+            "error: robot: a robot of {n} joints; the two-process mode runs arms of 6 or 7 joints"
+        );
+        ExitCode::FAILURE
+    })
+}
+
+/// The controller loop for the scene's robot of `N` joints.
+struct Controller<'a> {
+    scene: &'a Scene,
+    opts: &'a ControllerOptions,
+}
+
+impl WithJoints for Controller<'_> {
+    type Output = ExitCode;
+    fn with<const N: usize>(self) -> ExitCode {
+        let (robot, inverse) = match setup::core::<N>(self.scene) {
+            Ok(c) => c,
+            Err(e) => {
+                eprintln!("error: {}", chain(&e));
+                return ExitCode::FAILURE;
+            }
+        };
+        match run_controller::<ROWS, N>(robot, inverse, self.opts, &AtomicBool::new(false)) {
+            Ok(stats) => {
+                println!("needle-controller: {stats}");
+                ExitCode::SUCCESS
+            }
+            Err(e) => {
+                eprintln!("error: {}", chain(&e));
+                ExitCode::FAILURE
+            }
         }
     }
 }

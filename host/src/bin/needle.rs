@@ -10,7 +10,8 @@
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
 use needle_bridge::{BridgeConfig, SharedMemoryHost, setup_fingerprint};
-use needle_host::error::chain;
+use needle_host::error::{SetupError, chain};
+use needle_host::joints::{WithJoints, with_joints};
 use needle_host::report::{ReportOptions, report};
 use needle_host::run::{
     ControllerKind, RunError, RunOptions, RunResult, RunSummary, StageTiming, planned_steps, run,
@@ -567,62 +568,101 @@ fn serve_cmd(a: ServeArgs) -> ExitCode {
         eprintln!("error: --deadline-ms, --period-ms and --give-up-s must be positive");
         return ExitCode::from(2);
     }
+    let n = match scene.joint_count() {
+        Ok(n) => n,
+        Err((field, reason)) => {
+            eprintln!("error: {}", chain(&SetupError::Robot { field, reason }));
+            return ExitCode::FAILURE;
+        }
+    };
     let cfg = BridgeConfig {
-        instance: a.instance,
+        instance: a.instance.clone(),
         deadline: Duration::from_secs_f64(a.deadline_ms * 1e-3),
         handle_signals: true,
         ..BridgeConfig::default()
     };
-    let (robot, inverse) = match setup::core(&scene) {
-        Ok(c) => c,
-        Err(e) => {
-            eprintln!("error: {}", chain(&e));
-            return ExitCode::FAILURE;
-        }
-    };
-    needle_bridge::shm::quiet_logs();
-    let mut host =
-        match SharedMemoryHost::<ROWS>::connect(&cfg, setup_fingerprint(&robot, &inverse)) {
-            Ok(h) => h,
+    with_joints(
+        n,
+        Serve {
+            scene: &scene,
+            cfg: &cfg,
+            args: &a,
+        },
+    )
+    .unwrap_or_else(|| {
+        eprintln!(
+            "error: robot: a robot of {n} joints; the two-process mode runs arms of 6 or 7 joints"
+        );
+        ExitCode::FAILURE
+    })
+}
+
+/// `needle serve` for the scene's robot of `N` joints.
+struct Serve<'a> {
+    scene: &'a Scene,
+    cfg: &'a BridgeConfig,
+    args: &'a ServeArgs,
+}
+
+impl WithJoints for Serve<'_> {
+    type Output = ExitCode;
+    fn with<const N: usize>(self) -> ExitCode {
+        let Serve {
+            scene,
+            cfg,
+            args: a,
+        } = self;
+        let (robot, inverse) = match setup::core::<N>(scene) {
+            Ok(c) => c,
             Err(e) => {
                 eprintln!("error: {}", chain(&e));
                 return ExitCode::FAILURE;
             }
         };
-    eprintln!(
-        "needle serve: scene {} · session {:016x} · frames on {} · commands from {} · {} dead node(s) cleaned, {} half-created service(s) removed",
-        scene.name,
-        host.session(),
-        cfg.frame_service_name(),
-        cfg.command_service_name(),
-        host.stats().dead_nodes_cleaned,
-        host.stats().hung_services_removed
-    );
-    eprintln!(
-        "needle serve: waiting for `needle-controller {} --instance {}`",
-        scene.name, cfg.instance
-    );
-    let opts = RunOptions {
-        controller: ControllerKind::Inverse,
-        steps: a.output.steps,
-        out_dir: a.output.out.clone(),
-        period: a.period_ms.map(|p| Duration::from_secs_f64(p * 1e-3)),
-        give_up_after: a.give_up_s.map(Duration::from_secs_f64),
-        ..RunOptions::default()
-    };
-    let result = with_progress(&scene, &a.output, |observe| {
-        run_with(&scene, &opts, &mut host, observe)
-    });
-    let st = host.stats();
-    eprintln!(
-        "needle serve: frames published {}, commands accepted {}, rejected {}, stale {}, timeouts {}",
-        st.frames_published,
-        st.commands_accepted,
-        st.commands_rejected,
-        st.commands_stale,
-        st.timeouts
-    );
-    finish(result, a.output.json)
+        needle_bridge::shm::quiet_logs();
+        let mut host =
+            match SharedMemoryHost::<ROWS, N>::connect(cfg, setup_fingerprint(&robot, &inverse)) {
+                Ok(h) => h,
+                Err(e) => {
+                    eprintln!("error: {}", chain(&e));
+                    return ExitCode::FAILURE;
+                }
+            };
+        eprintln!(
+            "needle serve: scene {} · {N} joints · session {:016x} · frames on {} · commands from {} · {} dead node(s) cleaned, {} half-created service(s) removed",
+            scene.name,
+            host.session(),
+            cfg.frame_service_name(),
+            cfg.command_service_name(),
+            host.stats().dead_nodes_cleaned,
+            host.stats().hung_services_removed
+        );
+        eprintln!(
+            "needle serve: waiting for `needle-controller {} --instance {}`",
+            scene.name, cfg.instance
+        );
+        let opts = RunOptions {
+            controller: ControllerKind::Inverse,
+            steps: a.output.steps,
+            out_dir: a.output.out.clone(),
+            period: a.period_ms.map(|p| Duration::from_secs_f64(p * 1e-3)),
+            give_up_after: a.give_up_s.map(Duration::from_secs_f64),
+            ..RunOptions::default()
+        };
+        let result = with_progress(scene, &a.output, |observe| {
+            run_with(scene, &opts, &mut host, observe)
+        });
+        let st = host.stats();
+        eprintln!(
+            "needle serve: frames published {}, commands accepted {}, rejected {}, stale {}, timeouts {}",
+            st.frames_published,
+            st.commands_accepted,
+            st.commands_rejected,
+            st.commands_stale,
+            st.timeouts
+        );
+        finish(result, a.output.json)
+    }
 }
 
 fn main() -> ExitCode {
