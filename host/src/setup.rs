@@ -36,6 +36,9 @@ pub struct Plan {
     pub steps: usize,
     /// Write VTK files every this many steps (0: never).
     pub vtk_every: usize,
+    /// The gel's support motion, as the summary gives it (`gel.support_motion`; none: the
+    /// support stays still).
+    pub support_motion: Option<crate::support_motion::MotionSummary>,
 }
 
 /// A scene, set up: the world at its start and every typed parameter; a robot of `N` joints
@@ -161,6 +164,8 @@ impl<const N: usize> Setup<N> {
             }
             _ => None,
         };
+        let mut plan = plan(scene);
+        plan.support_motion = (world.support_motion.as_ref()).map(|m| m.summary(model.is_some()));
         tracing::info!(
             "scene `{}` set up in {:.2} s: {} gel nodes, needle of {} beams",
             scene.name,
@@ -173,7 +178,7 @@ impl<const N: usize> Setup<N> {
             params: step_params(scene),
             robot,
             inverse: scene.inverse_params(),
-            plan: plan(scene),
+            plan,
             model,
         })
     }
@@ -325,6 +330,7 @@ fn plan(scene: &Scene) -> Plan {
             .collect(),
         steps: planned_steps(scene),
         vtk_every: scene.output.vtk_every,
+        support_motion: None,
     }
 }
 

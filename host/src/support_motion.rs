@@ -17,6 +17,7 @@
 #![allow(rustdoc::broken_intra_doc_links)]
 
 use nalgebra::Vector3;
+use serde::Serialize;
 use std::fmt;
 use std::path::{Path, PathBuf};
 
@@ -112,6 +113,50 @@ impl SupportMotion {
                 let (ta, tb) = (times[k - 1], times[k]);
                 let f = (t - ta) / (tb - ta);
                 displacements[k - 1] * (1.0 - f) + displacements[k] * f
+            }
+        }
+    }
+
+    /// What a run's summary says of this motion ([`MotionSummary`]); `hidden`: the motion is
+    /// hidden from the controller's model (`gel.support_motion.hidden`).
+    pub fn summary(&self, hidden: bool) -> MotionSummary {
+        match self {
+            Self::Breathing {
+                amplitude,
+                period,
+                direction,
+                phase,
+            } => MotionSummary {
+                kind: MotionKind::Breathing,
+                amplitude_mm: *amplitude,
+                period_s: Some(*period),
+                direction: Some([direction.x, direction.y, direction.z]),
+                phase_rad: Some(*phase),
+                table_rows: None,
+                hidden,
+            },
+            Self::Table {
+                times: _,
+                displacements,
+            } => {
+                let largest = displacements
+                    .iter()
+                    .copied()
+                    .max_by(|a, b| a.norm().total_cmp(&b.norm()))
+                    .unwrap_or_else(Vector3::zeros);
+                let n = largest.norm();
+                MotionSummary {
+                    kind: MotionKind::Table,
+                    amplitude_mm: n,
+                    period_s: None,
+                    direction: (n > 0.0).then(|| {
+                        let u = largest / n;
+                        [u.x, u.y, u.z]
+                    }),
+                    phase_rad: None,
+                    table_rows: Some(displacements.len()),
+                    hidden,
+                }
             }
         }
     }
@@ -232,6 +277,75 @@ impl fmt::Display for MotionCsvError {
 
 impl std::error::Error for MotionCsvError {}
 
+/// The kind of a support motion, as a run's summary names it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum MotionKind {
+    /// `[gel.support_motion.breathing]`.
+    Breathing,
+    /// A table of displacements (`gel.support_motion.csv`).
+    Table,
+}
+
+impl MotionKind {
+    /// The name of the kind (`breathing`, `table`), as in `summary.json`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Breathing => "breathing",
+            Self::Table => "table",
+        }
+    }
+}
+
+/// The support motion of a run, in its summary (`summary.json`'s `support_motion`, the
+/// `support motion:` line of `needle run`).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct MotionSummary {
+    /// `breathing` or `table` (a CSV file).
+    pub kind: MotionKind,
+    /// The largest distance of the support from its rest position [mm]: a breathing motion's
+    /// amplitude (its peak-to-peak travel, `d` goes from 0 to `amplitude · direction`), a
+    /// table's largest displacement.
+    pub amplitude_mm: f64,
+    /// A breathing motion's period [s] (none for a table).
+    pub period_s: Option<f64>,
+    /// The unit direction of the motion: a breathing motion's, a table's largest displacement's
+    /// (none for a table that never moves).
+    pub direction: Option<[f64; 3]>,
+    /// A breathing motion's phase [rad] (none for a table).
+    pub phase_rad: Option<f64>,
+    /// A table's rows (none for a breathing motion).
+    pub table_rows: Option<usize>,
+    /// Whether the motion is hidden from the controller's model (`hidden = true`: the
+    /// controller steers a model whose support stays still) or modelled (the default).
+    pub hidden: bool,
+}
+
+impl fmt::Display for MotionSummary {
+    /// One line: `breathing, 5.000 mm every 4.000 s along [1.000, 0.000, 0.000], phase 0.000
+    /// rad, modelled`.
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}, {:.3} mm", self.kind.name(), self.amplitude_mm)?;
+        if let Some(t) = self.period_s {
+            write!(f, " every {t:.3} s")?;
+        }
+        if let Some(rows) = self.table_rows {
+            write!(f, " at most (a table of {rows} rows)")?;
+        }
+        if let Some([x, y, z]) = self.direction {
+            write!(f, " along [{x:.3}, {y:.3}, {z:.3}]")?;
+        }
+        if let Some(p) = self.phase_rad {
+            write!(f, ", phase {p:.3} rad")?;
+        }
+        f.write_str(if self.hidden {
+            ", hidden from the controller's model"
+        } else {
+            ", modelled (the controller's model moves alike)"
+        })
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -253,6 +367,35 @@ mod tests {
         // A phase of π starts at the peak.
         let p = SupportMotion::breathing(5.0, 4.0, [1.0, 0.0, 0.0], std::f64::consts::PI).unwrap();
         assert!((p.displacement(0.0).x - 5.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn the_summary_names_kind_amplitude_period_direction_and_hiding() {
+        let b = SupportMotion::breathing(5.0, 4.0, [2.0, 0.0, 0.0], 0.0).unwrap();
+        let s = b.summary(true);
+        assert_eq!(s.kind, MotionKind::Breathing);
+        assert_eq!((s.amplitude_mm, s.period_s), (5.0, Some(4.0)));
+        assert_eq!(s.direction, Some([1.0, 0.0, 0.0]));
+        assert!(s.hidden);
+        assert_eq!(
+            s.to_string(),
+            "breathing, 5.000 mm every 4.000 s along [1.000, 0.000, 0.000], phase 0.000 rad, \
+             hidden from the controller's model"
+        );
+        let json = serde_json::to_value(&s).unwrap();
+        assert_eq!(json["kind"], "breathing");
+        assert_eq!(json["period_s"], 4.0);
+        assert_eq!(json["table_rows"], serde_json::Value::Null);
+        let t = parse("t,dx,dy,dz\n0,0,0,0\n1,0,3,4\n2,0,0,1\n")
+            .unwrap()
+            .summary(false);
+        assert_eq!((t.kind, t.amplitude_mm), (MotionKind::Table, 5.0));
+        assert_eq!(t.direction, Some([0.0, 0.6, 0.8]));
+        assert_eq!((t.period_s, t.table_rows, t.hidden), (None, Some(3), false));
+        assert!(
+            t.to_string()
+                .ends_with("modelled (the controller's model moves alike)")
+        );
     }
 
     #[test]

@@ -272,6 +272,22 @@ fn target_moves_with_the_support_and_the_hidden_motion_leaves_the_joints_unchang
     for (s, h) in still.reports.iter().zip(&hidden.reports) {
         assert_eq!(s.q, h.q, "step {}", s.step);
     }
+    // The summaries say which run had a motion, which one, and whether it was hidden.
+    assert_eq!(still.summary.support_motion, None);
+    let said = |r: &RunResult| r.summary.support_motion.clone().expect("a support motion");
+    assert_eq!(said(&modelled), m.summary(false));
+    assert_eq!(said(&hidden), m.summary(true));
+    let json = serde_json::to_value(&hidden.summary).unwrap();
+    let motion = &json["support_motion"];
+    assert_eq!(motion["kind"], "breathing");
+    assert_eq!(motion["amplitude_mm"], 5.0);
+    assert_eq!(motion["period_s"], 4.0);
+    assert_eq!(motion["direction"], serde_json::json!([1.0, 0.0, 0.0]));
+    assert_eq!(motion["hidden"], true);
+    assert_eq!(
+        serde_json::to_value(&still.summary).unwrap()["support_motion"],
+        serde_json::Value::Null
+    );
     let last = hidden.reports.len() - 1;
     let moved = (hidden.reports[last].target - still.reports[last].target).norm();
     println!("hidden: the world's target is {moved:.3} mm from the model's at the last step");
@@ -333,6 +349,14 @@ fn csv_motion_errors_name_the_file_the_line_and_the_reason() {
         ],
     );
     let r = run_steps(&s, 30);
+    let said = r.summary.support_motion.expect("the table in the summary");
+    assert_eq!(said.kind, needle_host::support_motion::MotionKind::Table);
+    assert_eq!((said.amplitude_mm, said.table_rows), (2.0, Some(2)));
+    assert_eq!(
+        (said.direction, said.period_s),
+        (Some([0.0, 1.0, 0.0]), None)
+    );
+    assert!(!said.hidden);
     let mut setup = Setup::build(&s).unwrap();
     setup.world.move_support(1.0);
     assert_eq!(setup.world.support_offset, Vector3::new(0.0, 2.0, 0.0));

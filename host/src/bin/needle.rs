@@ -320,6 +320,9 @@ fn print_text(s: &RunSummary) {
         "scene {} · controller {:?} · {} gel nodes",
         s.scene, s.controller, s.gel_nodes
     );
+    if let Some(m) = &s.support_motion {
+        println!("support motion: {m}");
+    }
     println!(
         "steps {}/{}{}{}",
         s.steps,

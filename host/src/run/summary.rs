@@ -76,6 +76,10 @@ pub struct RunSummary {
     pub controller: ControllerKind,
     /// Gel nodes.
     pub gel_nodes: usize,
+    /// The gel support's prescribed motion (`[gel.support_motion]`: kind, amplitude, period,
+    /// direction, hidden from the controller's model or modelled); `null` in JSON when the
+    /// support stays still.
+    pub support_motion: Option<crate::support_motion::MotionSummary>,
     /// The build, machine and date that made this run.
     pub provenance: crate::provenance::Provenance,
     /// Steps run (a whole insertion may add settling steps after the planned ones: the target
@@ -312,6 +316,7 @@ impl Statistics {
             scene: plan.name.clone(),
             controller: end.controller,
             gel_nodes: world.gel.node_count(),
+            support_motion: plan.support_motion.clone(),
             provenance: crate::provenance::Provenance::now(),
             steps: reports.len(),
             steps_planned: end.steps_planned,
