@@ -66,6 +66,7 @@ class Simulation:
     punctured: bool
     in_contact: bool
     joints: F64
+    joint_count: int
     needle_positions: F64
     gel_positions: F64
     gel_rest_positions: F64

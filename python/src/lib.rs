@@ -27,7 +27,7 @@ use needle_bridge::InProcess;
 use needle_host::error::chain;
 use needle_host::run::{ControllerKind, RunError, RunOptions};
 use needle_host::scene::{MAX_STEPS, Scene as HostScene, SceneError as HostSceneError};
-use needle_host::setup::{Plan, Setup};
+use needle_host::setup::{Plan, Setup, WithSetup, with_setup};
 use needle_host::step::{Pipeline, ROWS, StageTimes, StepParams, StepReport as HostReport};
 use needle_host::world::World;
 use numpy::ndarray::Array2;
@@ -36,6 +36,7 @@ use pyo3::create_exception;
 use pyo3::exceptions::{PyRuntimeError, PyTypeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyBool, PyDict, PyFloat, PyInt, PyList, PyString, PyTuple};
+use std::any::Any;
 use std::ops::ControlFlow;
 use std::path::PathBuf;
 use std::sync::Mutex;
@@ -345,7 +346,7 @@ impl StepReport {
     fn gs_iterations(&self) -> u32 {
         self.r.solver.iterations
     }
-    /// Joints after the step, shape (6,) [rad].
+    /// Joints after the step, shape (joints,) [rad]: 6, or 7 for a 7-joint arm.
     #[getter]
     fn joints<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
         PyArray1::from_slice(py, &self.r.q)
@@ -403,34 +404,104 @@ impl StepReport {
     }
 }
 
-/// The state of a [`Simulation`].
-struct State {
-    world: World,
+/// The state of a [`Simulation`] of a robot of `N` joints.
+struct State<const N: usize> {
+    world: World<N>,
     params: StepParams,
-    core: InProcess<ROWS>,
-    pipeline: Pipeline,
+    core: InProcess<ROWS, N>,
+    pipeline: Pipeline<N>,
     plan: Plan,
     /// Why a step failed: the world may be half-way through it and is not stepped again.
     failed: Option<String>,
 }
 
+impl<const N: usize> State<N> {
+    /// The state at the start of `setup`.
+    fn new(setup: Setup<N>) -> Self {
+        let core = InProcess::<ROWS, N>::new(setup.robot, setup.inverse);
+        let pipeline = Pipeline::new(&setup.world);
+        Self {
+            world: setup.world,
+            params: setup.params,
+            core,
+            pipeline,
+            plan: setup.plan,
+            failed: None,
+        }
+    }
+
+    /// One step, or why it failed (then, and after an earlier failure, the state is not
+    /// stepped).
+    fn step(&mut self) -> Result<HostReport, String> {
+        if let Some(why) = &self.failed {
+            return Err(format!("an earlier step failed ({why}): cannot step again"));
+        }
+        match self.pipeline.step(&mut self.world, &self.params, &mut self.core) {
+            Ok(r) => Ok(r),
+            Err(e) => {
+                let why = chain(&e);
+                self.failed = Some(why.clone());
+                Err(why)
+            }
+        }
+    }
+}
+
+/// A [`State`] of the scene's own joint count (the counts the host runs: 6 and 7).
+enum States {
+    J6(State<6>),
+    J7(State<7>),
+}
+
+/// `$body` on the [`State`] of a [`Simulation`] (`$s`), whatever its joint count.
+macro_rules! with_state {
+    ($sim:expr, |$s:ident| $body:expr) => {{
+        let guard = $sim.lock();
+        match &*guard {
+            States::J6($s) => $body,
+            States::J7($s) => $body,
+        }
+    }};
+}
+
+/// Sets a scene up with its robot's own joint count ([`with_setup`]) into a [`States`].
+struct BuildState;
+
+impl WithSetup for BuildState {
+    type Output = Result<States, String>;
+    fn with<const N: usize>(self, setup: Setup<N>) -> Self::Output {
+        if setup.model.is_some() {
+            // A hidden support motion steps two worlds (the controller's model and the moving
+            // world); a Simulation steps one.
+            return Err("gel.support_motion.hidden: a Simulation steps one world; run a motion \
+                        hidden from the model with needle.run"
+                .into());
+        }
+        let state: Box<dyn Any> = Box::new(State::<N>::new(setup));
+        match state.downcast::<State<6>>() {
+            Ok(s) => Ok(States::J6(*s)),
+            Err(state) => match state.downcast::<State<7>>() {
+                Ok(s) => Ok(States::J7(*s)),
+                Err(_) => Err(format!("a robot of {N} joints: a Simulation steps 6 or 7")),
+            },
+        }
+    }
+}
+
 /// A scene set up and stepped from Python, one step at a time, with the core in this process
 /// (as `host/examples/run_scene.rs`): no watchdog, no settling, no summary — see `run` for
-/// those.
+/// those. The robot has the scene's joint count (6, or 7 for a 7-joint arm such as
+/// `scenes/robots/iiwa_complex.toml`): `joints` arrays have that length.
 ///
 /// `Simulation(scene, overrides=None)` takes what `Scene` takes (or a `Scene`).
 #[pyclass(module = "needle")]
 struct Simulation {
-    state: Mutex<State>,
+    state: Mutex<States>,
     name: String,
 }
 
 impl Simulation {
-    fn with<T>(&self, f: impl FnOnce(&State) -> T) -> T {
-        f(&self.lock())
-    }
-
-    fn lock(&self) -> std::sync::MutexGuard<'_, State> {
+    fn lock(&self) -> std::sync::MutexGuard<'_, States> {
         // A panic in a step poisons the lock; the state is then flagged failed anyway.
         self.state.lock().unwrap_or_else(|p| p.into_inner())
     }
@@ -446,28 +517,12 @@ impl Simulation {
         overrides: Option<&Bound<'_, PyDict>>,
     ) -> PyResult<Self> {
         let scene = load_scene(py, scene, overrides)?;
-        let setup = py
-            .detach(|| Setup::build(&scene))
-            .map_err(|e| SetupError::new_err(chain(&e)))?;
-        if setup.model.is_some() {
-            // A hidden support motion steps two worlds (the controller's model and the moving
-            // world); a Simulation steps one.
-            return Err(SetupError::new_err(
-                "gel.support_motion.hidden: a Simulation steps one world; run a motion hidden \
-                 from the model with needle.run",
-            ));
-        }
-        let core = InProcess::<ROWS>::new(setup.robot, setup.inverse);
-        let pipeline = Pipeline::new(&setup.world);
+        let state = py
+            .detach(|| with_setup(&scene, BuildState))
+            .map_err(|e| SetupError::new_err(chain(&e)))?
+            .map_err(SetupError::new_err)?;
         Ok(Self {
-            state: Mutex::new(State {
-                world: setup.world,
-                params: setup.params,
-                core,
-                pipeline,
-                plan: setup.plan,
-                failed: None,
-            }),
+            state: Mutex::new(state),
             name: scene.name,
         })
     }
@@ -476,27 +531,11 @@ impl Simulation {
     /// motion) and returns its report. Raises `SimulationError` if the step fails; the
     /// simulation cannot be stepped after that.
     fn step(&self, py: Python<'_>) -> PyResult<StepReport> {
-        py.detach(|| {
-            let mut s = self.lock();
-            if let Some(why) = &s.failed {
-                return Err(format!("an earlier step failed ({why}): cannot step again"));
-            }
-            let State {
-                world,
-                params,
-                core,
-                pipeline,
-                ..
-            } = &mut *s;
-            match pipeline.step(world, params, core) {
-                Ok(r) => Ok(StepReport { r }),
-                Err(e) => {
-                    let why = chain(&e);
-                    s.failed = Some(why.clone());
-                    Err(why)
-                }
-            }
+        py.detach(|| match &mut *self.lock() {
+            States::J6(s) => s.step(),
+            States::J7(s) => s.step(),
         })
+        .map(|r| StepReport { r })
         .map_err(SimulationError::new_err)
     }
 
@@ -508,103 +547,103 @@ impl Simulation {
     /// Steps a run of the scene plans (a whole insertion, or its `insertion.steps`).
     #[getter]
     fn planned_steps(&self) -> usize {
-        self.with(|s| s.plan.steps)
+        with_state!(self, |s| s.plan.steps)
     }
     /// Steps done.
     #[getter]
     fn steps(&self) -> usize {
-        self.with(|s| s.world.steps)
+        with_state!(self, |s| s.world.steps)
     }
     /// Time step [s].
     #[getter]
     fn dt(&self) -> f64 {
-        self.with(|s| s.params.dt)
+        with_state!(self, |s| s.params.dt)
     }
     /// Target's arc length from the start tip [mm].
     #[getter]
     fn c(&self) -> f64 {
-        self.with(|s| s.world.c)
+        with_state!(self, |s| s.world.c)
     }
     /// Needle tip, shape (3,) [mm].
     #[getter]
     fn tip<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
-        vec3(py, &self.with(|s| s.world.tip()))
+        vec3(py, &with_state!(self, |s| s.world.tip()))
     }
     /// Current target (the path point at arc length `c`; embedded in the gel once punctured),
     /// shape (3,) [mm].
     #[getter]
     fn target<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
-        vec3(py, &self.with(|s| s.world.target(s.world.c)))
+        vec3(py, &with_state!(self, |s| s.world.target(s.world.c)))
     }
     /// `|tip − target|` [mm].
     #[getter]
     fn error(&self) -> f64 {
-        self.with(|s| (s.world.tip() - s.world.target(s.world.c)).norm())
+        with_state!(self, |s| (s.world.tip() - s.world.target(s.world.c)).norm())
     }
     /// Insertion depth: tip distance past the entry point, 0 before the puncture [mm].
     #[getter]
     fn depth(&self) -> f64 {
-        self.with(|s| s.world.depth())
+        with_state!(self, |s| s.world.depth())
     }
     /// Whether the tip has punctured the surface.
     #[getter]
     fn punctured(&self) -> bool {
-        self.with(|s| s.world.punctured)
+        with_state!(self, |s| s.world.punctured)
     }
     /// Whether the tip pushed on the surface in the last step.
     #[getter]
     fn in_contact(&self) -> bool {
-        self.with(|s| s.world.in_contact)
+        with_state!(self, |s| s.world.in_contact)
     }
-    /// The robot's joints, shape (6,) [rad].
+    /// The robot's joints, shape (joints,) [rad]: 6, or 7 for a 7-joint arm.
     #[getter]
     fn joints<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
-        PyArray1::from_slice(py, &self.with(|s| s.world.q))
+        with_state!(self, |s| PyArray1::from_slice(py, &s.world.q))
+    }
+    /// The robot's joint count: 6, or 7 for a 7-joint arm.
+    #[getter]
+    fn joint_count(&self) -> usize {
+        with_state!(self, |s| s.world.q.len())
     }
     /// Needle nodes, base first, tip last, shape (N, 3) [mm].
     #[getter]
     fn needle_positions<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
-        let s = self.lock();
-        points(py, s.world.needle.positions().iter())
+        with_state!(self, |s| points(py, s.world.needle.positions().iter()))
     }
     /// Gel nodes, shape (N, 3) [mm].
     #[getter]
     fn gel_positions<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
-        let s = self.lock();
-        points(py, s.world.gel.positions().iter())
+        with_state!(self, |s| points(py, s.world.gel.positions().iter()))
     }
     /// Gel nodes at rest, shape (N, 3) [mm].
     #[getter]
     fn gel_rest_positions<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
-        let s = self.lock();
-        points(py, s.world.gel.mesh().nodes.iter())
+        with_state!(self, |s| points(py, s.world.gel.mesh().nodes.iter()))
     }
     /// The gel's tetrahedra as node indices, shape (M, 4).
     #[getter]
     fn gel_tets<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<i64>> {
-        let s = self.lock();
-        indices(py, &s.world.gel.mesh().tets)
+        with_state!(self, |s| indices(py, &s.world.gel.mesh().tets))
     }
     /// The gel's surface triangles as node indices, shape (K, 3).
     #[getter]
     fn gel_surface<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<i64>> {
-        let s = self.lock();
-        indices(py, &s.world.surface)
+        with_state!(self, |s| indices(py, &s.world.surface))
     }
     /// The entry point (planned before the puncture, actual after), shape (3,) [mm].
     #[getter]
     fn entry_point<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
-        vec3(py, &self.with(|s| s.world.entry_point()))
+        vec3(py, &with_state!(self, |s| s.world.entry_point()))
     }
     /// Clearance of the inserted needle to each obstacle (negative: hit; `inf` before the
     /// puncture), shape (obstacles,) [mm].
     #[getter]
     fn clearances<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
-        PyArray1::from_vec(py, self.with(|s| s.world.clearances()))
+        PyArray1::from_vec(py, with_state!(self, |s| s.world.clearances()))
     }
 
     fn __repr__(&self) -> String {
-        self.with(|s| {
+        with_state!(self, |s| {
             format!(
                 "needle.Simulation({:?}, steps={}, c={:.3}, depth={:.3})",
                 self.name,
