@@ -85,8 +85,8 @@ impl Elements for Tets {
     const NODE_DOFS: usize = 3;
 
     fn add_internal_forces(&mut self, positions: &[Vector3<f64>], f_int: &mut [f64]) {
-        self.tetra.update_rotations(positions);
-        self.tetra.add_internal_forces(positions, f_int);
+        self.tetra
+            .update_rotations_and_add_internal_forces(positions, f_int);
     }
 
     fn entry_dofs(&self) -> impl Iterator<Item = (usize, usize)> + '_ {
