@@ -105,7 +105,8 @@ pub enum SetupError {
     },
     /// A vertex of an obstacle's surface mesh is not inside the gel.
     #[error(
-        "obstacles[{index}].mesh: vertex {vertex} at {} (after `scale` and `translation`) is not inside the gel: a mesh obstacle must lie wholly in the gel, each vertex embedded in an element",
+        "obstacles[{index}].mesh: vertex {vertex}{} at {} (after `scale` and `translation`) is not inside the gel: a mesh obstacle must lie wholly in the gel, each vertex embedded in an element",
+        node_tag.map(|t| format!(" (gmsh node {t})")).unwrap_or_default(),
         mm(point)
     )]
     ObstacleVertexOutside {
@@ -113,6 +114,8 @@ pub enum SetupError {
         index: usize,
         /// Vertex of the surface (duplicates merged).
         vertex: usize,
+        /// Its node tag in a Gmsh file.
+        node_tag: Option<u64>,
         /// Its rest position [mm].
         point: Vector3<f64>,
     },

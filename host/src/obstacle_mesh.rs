@@ -1,5 +1,6 @@
-//! Obstacles given as closed surface meshes: reading STL (binary or ASCII) and Wavefront OBJ
-//! files, placing them (`scale`, then `translation`), and checking that the surface is closed
+//! Obstacles given as closed surface meshes: reading STL (binary or ASCII), Wavefront OBJ and
+//! Gmsh `.msh` files (the triangles of one physical surface group, through the gel mesh's Gmsh
+//! reader, [`crate::mesh::read_gmsh_surface`]), placing them (`scale`, then `translation`), and checking that the surface is closed
 //! and consistently oriented, so that inside and outside are well defined. Outward orientation
 //! is taken from the enclosed volume: a surface whose triangles all face inwards is flipped.
 
@@ -23,6 +24,25 @@ pub struct SurfaceMesh {
     pub vertices: Vec<Vector3<f64>>,
     /// Triangles, counter-clockwise seen from outside.
     pub triangles: Vec<[usize; 3]>,
+    /// The Gmsh node tag of each vertex (read from a `.msh` file), for messages.
+    pub node_tags: Option<Vec<u64>>,
+}
+
+/// How a surface's triangles and vertices are named in messages: by their index (`triangle 3`,
+/// `vertex 7`), or by their tags in a Gmsh file (`gmsh element 12`, `gmsh node 9`).
+pub struct Names<'a> {
+    /// The name of triangle `k` (in the input's order).
+    pub triangle: &'a dyn Fn(usize) -> String,
+    /// The name of vertex `i` (in the input's order).
+    pub vertex: &'a dyn Fn(usize) -> String,
+}
+
+impl Names<'_> {
+    /// `triangle k`, `vertex i`.
+    pub const INDICES: Names<'static> = Names {
+        triangle: &|k| format!("triangle {k}"),
+        vertex: &|i| format!("vertex {i}"),
+    };
 }
 
 impl SurfaceMesh {
@@ -45,6 +65,28 @@ impl SurfaceMesh {
     /// # Errors
     /// The reason, in words.
     pub fn closed(vertices: Vec<Vector3<f64>>, triangles: Vec<[usize; 3]>) -> Result<Self, String> {
+        Self::closed_named(vertices, triangles, &Names::INDICES)
+    }
+
+    /// [`Self::closed`], the triangles and vertices named in messages by `names`.
+    ///
+    /// # Errors
+    /// The reason, in words.
+    pub fn closed_named(
+        vertices: Vec<Vector3<f64>>,
+        triangles: Vec<[usize; 3]>,
+        names: &Names<'_>,
+    ) -> Result<Self, String> {
+        Self::closed_merged(vertices, triangles, names).map(|(m, _)| m)
+    }
+
+    /// [`Self::closed_named`], and for each vertex of the surface the input vertex it was
+    /// merged from first.
+    fn closed_merged(
+        vertices: Vec<Vector3<f64>>,
+        triangles: Vec<[usize; 3]>,
+        names: &Names<'_>,
+    ) -> Result<(Self, Vec<usize>), String> {
         if triangles.is_empty() {
             return Err("the file holds no triangle".into());
         }
@@ -60,21 +102,27 @@ impl SurfaceMesh {
         // Merge vertices with identical coordinates.
         let mut index: HashMap<[u64; 3], usize> = HashMap::new();
         let mut merged = Vec::new();
+        // The first input vertex of each merged vertex (its name in messages).
+        let mut first = Vec::new();
         let mut map = Vec::with_capacity(vertices.len());
-        for v in &vertices {
+        for (i, v) in vertices.iter().enumerate() {
             // +0.0 and −0.0 are the same point.
             let key = [v.x, v.y, v.z].map(|c| (c + 0.0).to_bits());
             let k = *index.entry(key).or_insert_with(|| {
                 merged.push(*v);
+                first.push(i);
                 merged.len() - 1
             });
             map.push(k);
         }
+        let tri = |k: usize| (names.triangle)(k);
+        let vtx = |m: usize| (names.vertex)(first[m]);
         let mut tris = Vec::with_capacity(triangles.len());
         for (k, t) in triangles.iter().enumerate() {
             if let Some(i) = t.iter().find(|&&i| i >= vertices.len()) {
                 return Err(format!(
-                    "triangle {k} names vertex {i}, but there are {} vertices",
+                    "{} names vertex {i}, but there are {} vertices",
+                    tri(k),
                     vertices.len()
                 ));
             }
@@ -82,7 +130,7 @@ impl SurfaceMesh {
             let [a, b, c] = t.map(|i| merged[i]);
             if t[0] == t[1] || t[1] == t[2] || t[0] == t[2] || (b - a).cross(&(c - a)).norm() == 0.0
             {
-                return Err(format!("triangle {k} is degenerate (zero area)"));
+                return Err(format!("{} is degenerate (zero area)", tri(k)));
             }
             tris.push(t);
         }
@@ -93,24 +141,36 @@ impl SurfaceMesh {
                 let (i, j) = (t[e], t[(e + 1) % 3]);
                 if let Some(other) = directed.insert((i, j), k) {
                     return Err(format!(
-                        "not a closed, consistently oriented surface: triangles {other} and {k} \
-                         traverse the edge {i}–{j} in the same direction (or it has more than \
-                         two triangles)"
+                        "not a closed, consistently oriented surface: {} and {} traverse the \
+                         edge from {} to {} in the same direction (or it has more than two \
+                         triangles)",
+                        tri(other),
+                        tri(k),
+                        vtx(i),
+                        vtx(j)
                     ));
                 }
             }
         }
-        for &(i, j) in directed.keys() {
-            if !directed.contains_key(&(j, i)) {
-                return Err(format!(
-                    "not a closed surface: the edge between vertices {i} and {j} borders only \
-                     one triangle (a hole)"
-                ));
+        // In triangle order, so that the hole named is always the same.
+        for (k, t) in tris.iter().enumerate() {
+            for e in 0..3 {
+                let (i, j) = (t[e], t[(e + 1) % 3]);
+                if !directed.contains_key(&(j, i)) {
+                    return Err(format!(
+                        "not a closed surface: the edge between {} and {} borders only one \
+                         triangle, {} (a hole)",
+                        vtx(i),
+                        vtx(j),
+                        tri(k)
+                    ));
+                }
             }
         }
         let mut mesh = Self {
             vertices: merged,
             triangles: tris,
+            node_tags: None,
         };
         let v = mesh.volume();
         if v == 0.0 || !v.is_finite() {
@@ -121,7 +181,7 @@ impl SurfaceMesh {
                 t.swap(1, 2);
             }
         }
-        Ok(mesh)
+        Ok((mesh, first))
     }
 
     /// The surface scaled by `scale` about the file's origin, then moved by `translation`.
@@ -141,6 +201,7 @@ pub fn icosphere(subdivisions: usize) -> SurfaceMesh {
     SurfaceMesh {
         vertices,
         triangles,
+        node_tags: None,
     }
 }
 
@@ -171,28 +232,84 @@ pub fn box_surface(min: &Vector3<f64>, max: &Vector3<f64>) -> SurfaceMesh {
     SurfaceMesh {
         vertices,
         triangles,
+        node_tags: None,
     }
 }
 
 /// Reads a closed surface mesh: STL (binary or ASCII) by the extension `.stl`, Wavefront OBJ
-/// by `.obj` (every object of the file, its faces triangulated as fans).
+/// by `.obj` (every object of the file, its faces triangulated as fans), Gmsh by `.msh`
+/// (format 2.2 or 4.1, ASCII or binary: the triangles of the physical surface group `group`,
+/// or every surface element of a file whose surface elements lie in at most one physical
+/// group; see [`crate::mesh::read_gmsh_surface`]). `group` is refused for the other formats.
+/// Errors of a Gmsh file name its elements and nodes by their tags in the file.
 ///
 /// # Errors
 /// The reason, in words (the caller names the file and field).
-pub fn read_surface_mesh(path: &Path) -> Result<SurfaceMesh, String> {
+pub fn read_surface_mesh(
+    path: &Path,
+    group: Option<&crate::mesh::PhysicalGroup>,
+) -> Result<SurfaceMesh, SurfaceMeshError> {
+    read(path, group).map_err(|(reason, in_group)| SurfaceMeshError { reason, in_group })
+}
+
+/// Why a surface mesh file cannot be used.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct SurfaceMeshError {
+    /// The reason, in words.
+    pub reason: String,
+    /// Whether the physical group chosen is at fault (not in the file, or given for a file
+    /// without groups), rather than the file.
+    pub in_group: bool,
+}
+
+impl std::fmt::Display for SurfaceMeshError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.reason)
+    }
+}
+
+fn read(
+    path: &Path,
+    group: Option<&crate::mesh::PhysicalGroup>,
+) -> Result<SurfaceMesh, (String, bool)> {
     let ext = path
         .extension()
         .and_then(|e| e.to_str())
         .map(str::to_ascii_lowercase);
-    if !matches!(ext.as_deref(), Some("stl" | "obj")) {
-        return Err("unknown mesh format: the file name must end in `.stl` or `.obj`".to_owned());
+    if !matches!(ext.as_deref(), Some("stl" | "obj" | "msh")) {
+        return Err((
+            "unknown mesh format: the file name must end in `.stl`, `.obj` or `.msh`".to_owned(),
+            false,
+        ));
+    }
+    if ext.as_deref() == Some("msh") {
+        let s = crate::mesh::read_gmsh_surface(path, group).map_err(|e| match e {
+            crate::mesh::GmshError::Io(e) => (format!("cannot read: {e}"), false),
+            e @ crate::mesh::GmshError::UnknownGroup { .. } => (e.to_string(), true),
+            e => (e.to_string(), false),
+        })?;
+        let names = Names {
+            triangle: &|k| format!("gmsh element {}", s.element_tags[k]),
+            vertex: &|i| format!("gmsh node {}", s.node_tags[i]),
+        };
+        let (mut mesh, first) =
+            SurfaceMesh::closed_merged(s.nodes.clone(), s.triangles.clone(), &names)
+                .map_err(|e| (e, false))?;
+        mesh.node_tags = Some(first.iter().map(|&i| s.node_tags[i]).collect());
+        return Ok(mesh);
+    }
+    if let Some(g) = group {
+        return Err((
+            format!("a {g} is chosen, but only a Gmsh `.msh` file has physical groups"),
+            true,
+        ));
     }
     let bytes = crate::bounded_read::read_bounded(path, MAX_OBSTACLE_MESH_BYTES)
-        .map_err(|e| format!("cannot read: {e}"))?;
+        .map_err(|e| (format!("cannot read: {e}"), false))?;
     let (vertices, triangles) = match ext.as_deref() {
         Some("stl") => {
             let mesh = stl_io::read_stl(&mut std::io::Cursor::new(&bytes))
-                .map_err(|e| format!("not a valid STL file: {e}"))?;
+                .map_err(|e| (format!("not a valid STL file: {e}"), false))?;
             (
                 mesh.vertices
                     .iter()
@@ -213,7 +330,7 @@ pub fn read_surface_mesh(path: &Path) -> Result<SurfaceMesh, String> {
                 // Materials are not used: no file besides the mesh is read.
                 |_| Err(tobj::LoadError::OpenFileFailed),
             )
-            .map_err(|e| format!("not a valid OBJ file: {e}"))?;
+            .map_err(|e| (format!("not a valid OBJ file: {e}"), false))?;
             let mut vertices = Vec::new();
             let mut triangles = Vec::new();
             for m in &models {
@@ -235,7 +352,7 @@ pub fn read_surface_mesh(path: &Path) -> Result<SurfaceMesh, String> {
         }
         _ => unreachable!("the extension was checked"),
     };
-    SurfaceMesh::closed(vertices, triangles)
+    SurfaceMesh::closed(vertices, triangles).map_err(|e| (e, false))
 }
 
 #[cfg(test)]
@@ -333,23 +450,27 @@ mod tests {
         let objf = dir.join("t.obj");
         std::fs::write(&objf, obj).unwrap();
         for f in [&bin, &asc, &objf] {
-            let m = read_surface_mesh(f).unwrap();
+            let m = read_surface_mesh(f, None).unwrap();
             assert_eq!((m.vertices.len(), m.triangles.len()), (4, 4), "{f:?}");
             assert!((m.volume() - 1.0 / 6.0).abs() < 1e-7, "{f:?}");
         }
-        let placed = read_surface_mesh(&objf)
+        let placed = read_surface_mesh(&objf, None)
             .unwrap()
             .placed(2.0, &Vector3::new(1.0, 0.0, 0.0));
         assert!((placed.volume() - 8.0 / 6.0).abs() < 1e-12);
         assert!(placed.vertices.contains(&Vector3::new(3.0, 0.0, 0.0)));
         // Unknown extension, missing file, garbage.
-        let e = read_surface_mesh(&dir.join("t.ply")).unwrap_err();
+        let e = read_surface_mesh(&dir.join("t.ply"), None)
+            .unwrap_err()
+            .reason;
         assert!(e.contains("unknown mesh format"), "{e}");
-        let e = read_surface_mesh(&dir.join("missing.stl")).unwrap_err();
+        let e = read_surface_mesh(&dir.join("missing.stl"), None)
+            .unwrap_err()
+            .reason;
         assert!(e.contains("cannot read"), "{e}");
         let bad = dir.join("bad.obj");
         std::fs::write(&bad, "v 0 0 0\nf 1 2 3\n").unwrap();
-        assert!(read_surface_mesh(&bad).is_err());
+        assert!(read_surface_mesh(&bad, None).is_err());
         std::fs::remove_dir_all(&dir).ok();
     }
 }

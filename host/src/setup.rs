@@ -522,18 +522,20 @@ pub fn obstacle_shapes(scene: &Scene) -> Result<Vec<ObstacleShape>, SetupError> 
         .iter()
         .enumerate()
         .map(|(index, o)| match (&o.mesh, o.center, o.radius) {
-            (Some(file), _, _) => crate::obstacle_mesh::read_surface_mesh(file)
-                .map(|m| {
-                    ObstacleShape::Mesh(m.placed(
-                        o.scale.unwrap_or(1.0),
-                        &Vector3::from(o.translation.unwrap_or_default()),
-                    ))
-                })
-                .map_err(|reason| SetupError::ObstacleMesh {
-                    index,
-                    file: file.clone(),
-                    reason,
-                }),
+            (Some(file), _, _) => {
+                crate::obstacle_mesh::read_surface_mesh(file, o.physical_group.as_ref())
+                    .map(|m| {
+                        ObstacleShape::Mesh(m.placed(
+                            o.scale.unwrap_or(1.0),
+                            &Vector3::from(o.translation.unwrap_or_default()),
+                        ))
+                    })
+                    .map_err(|e| SetupError::ObstacleMesh {
+                        index,
+                        file: file.clone(),
+                        reason: e.reason,
+                    })
+            }
             (None, Some(center), Some(radius)) => Ok(ObstacleShape::Sphere {
                 center: Vector3::from(center),
                 radius,

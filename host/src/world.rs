@@ -222,6 +222,7 @@ impl<const N: usize> World<N> {
                                 .ok_or(SetupError::ObstacleVertexOutside {
                                     index,
                                     vertex,
+                                    node_tag: m.node_tags.as_ref().map(|t| t[vertex]),
                                     point: *p,
                                 })
                         })

@@ -64,6 +64,30 @@ pub enum GmshError {
         /// Its physical tags.
         tags: Vec<i32>,
     },
+    /// A surface element that is not a 3-node triangle (reading a surface).
+    NotTriangle {
+        /// Tag of the element in the file.
+        element_tag: u64,
+        /// Its type, in words.
+        kind: String,
+    },
+    /// The file (or the physical group chosen) has no surface element.
+    NoSurface {
+        /// The physical group chosen, if any.
+        group: Option<PhysicalGroup>,
+    },
+    /// The physical group chosen is not a physical surface group of the file.
+    UnknownGroup {
+        /// The group chosen.
+        group: PhysicalGroup,
+        /// The file's physical surface groups.
+        available: Vec<(i32, Option<String>)>,
+    },
+    /// The file's surface elements lie in several physical groups and none was chosen.
+    SeveralSurfaces {
+        /// The file's physical surface groups.
+        available: Vec<(i32, Option<String>)>,
+    },
     /// A section's header count differs from what the section holds.
     CountMismatch {
         /// `$Nodes` or `$Elements`.
@@ -107,6 +131,28 @@ impl fmt::Display for GmshError {
                 "gmsh volume {entity} is in {} physical groups {tags:?}: its region is ambiguous (put it in one)",
                 tags.len()
             ),
+            Self::NotTriangle { element_tag, kind } => write!(
+                f,
+                "gmsh element {element_tag} is a {kind}, not a 3-node triangle (a surface is read from linear triangles only)"
+            ),
+            Self::NoSurface { group: None } => write!(
+                f,
+                "gmsh file has no surface element (a 3-node triangle, element type 2)"
+            ),
+            Self::NoSurface { group: Some(g) } => {
+                write!(f, "gmsh {g} has no surface element")
+            }
+            Self::UnknownGroup { group, available } => write!(
+                f,
+                "gmsh file has no {group} of surface elements; its physical surface groups: {}",
+                group_list(available)
+            ),
+            Self::SeveralSurfaces { available } => write!(
+                f,
+                "gmsh file holds {} physical surface groups ({}): choose one with the obstacle's `physical_group` (its tag or name)",
+                available.len(),
+                group_list(available)
+            ),
             Self::CountMismatch {
                 section,
                 header,
@@ -115,6 +161,41 @@ impl fmt::Display for GmshError {
                 f,
                 "gmsh {section} header counts {header} entries but its blocks hold {found}"
             ),
+        }
+    }
+}
+
+/// `1 (`lesion`), 2` — the groups of a message, or `none`.
+fn group_list(groups: &[(i32, Option<String>)]) -> String {
+    if groups.is_empty() {
+        return "none".to_owned();
+    }
+    groups
+        .iter()
+        .map(|(t, n)| match n {
+            Some(n) => format!("{t} (`{n}`)"),
+            None => t.to_string(),
+        })
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+/// A physical group of a Gmsh file, by its tag or its name (`$PhysicalNames`); in a scene, an
+/// integer or a string.
+#[derive(Clone, Debug, PartialEq, Eq, serde::Deserialize, serde::Serialize)]
+#[serde(untagged)]
+pub enum PhysicalGroup {
+    /// The group's tag.
+    Tag(i32),
+    /// The group's name.
+    Name(String),
+}
+
+impl fmt::Display for PhysicalGroup {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::Tag(t) => write!(f, "physical group {t}"),
+            Self::Name(n) => write!(f, "physical group `{n}`"),
         }
     }
 }
@@ -143,6 +224,227 @@ impl From<std::io::Error> for GmshError {
 pub fn read_gmsh(path: impl AsRef<Path>) -> Result<TetMesh, GmshError> {
     let bytes = crate::bounded_read::read_bounded(path.as_ref(), MAX_FILE_BYTES)?;
     read_gmsh_bytes(&bytes)
+}
+
+/// A triangulated surface read from a Gmsh file: the nodes its triangles use (in file order)
+/// and the triangles (in file order), each with its tag in the file.
+#[derive(Clone, Debug, PartialEq)]
+pub struct GmshSurface {
+    /// Node positions [mm].
+    pub nodes: Vec<Vector3<f64>>,
+    /// The Gmsh tag of each node.
+    pub node_tags: Vec<u64>,
+    /// Triangles as indices into `nodes`, in the file's node order.
+    pub triangles: Vec<[usize; 3]>,
+    /// The Gmsh tag of each triangle.
+    pub element_tags: Vec<u64>,
+}
+
+/// Reads the triangles of a Gmsh 2.2 or 4.1 file (ASCII or binary), all of them or those of
+/// one physical surface group; see [`read_gmsh_surface_bytes`].
+///
+/// # Errors
+/// [`GmshError`] naming the element at fault and the reason.
+pub fn read_gmsh_surface(
+    path: impl AsRef<Path>,
+    group: Option<&PhysicalGroup>,
+) -> Result<GmshSurface, GmshError> {
+    let bytes = crate::bounded_read::read_bounded(path.as_ref(), MAX_FILE_BYTES)?;
+    read_gmsh_surface_bytes(&bytes, group)
+}
+
+/// Reads the surface (2-D) elements of a Gmsh file from memory, through the same parsers as
+/// the tetrahedral meshes. Points, lines and volume elements are ignored. With `group`, the
+/// elements of that physical surface group (by tag, or by name through `$PhysicalNames`);
+/// without it, every surface element, unless they lie in more than one physical group (then
+/// the choice is the caller's: [`GmshError::SeveralSurfaces`]). Every element read must be a
+/// 3-node triangle.
+///
+/// # Errors
+/// [`GmshError`]: parse errors, [`GmshError::NotTriangle`], [`GmshError::NoSurface`],
+/// [`GmshError::UnknownGroup`], [`GmshError::SeveralSurfaces`],
+/// [`GmshError::UnknownNodeTag`].
+pub fn read_gmsh_surface_bytes(
+    bytes: &[u8],
+    group: Option<&PhysicalGroup>,
+) -> Result<GmshSurface, GmshError> {
+    let raw = if declared_version(bytes).is_some_and(|v| v.starts_with('2')) {
+        super::gmsh2::parse(bytes)?
+    } else {
+        parse_v4(bytes)?
+    };
+    let names = physical_names(bytes)?;
+    let name_of = |tag: i32| {
+        names
+            .iter()
+            .find(|(d, t, _)| *d == 2 && *t == tag)
+            .map(|(_, _, n)| n.clone())
+    };
+    let mut tags: Vec<i32> = raw.faces.iter().flat_map(|f| f.groups.clone()).collect();
+    tags.extend(names.iter().filter(|(d, _, _)| *d == 2).map(|(_, t, _)| *t));
+    tags.sort_unstable();
+    tags.dedup();
+    let available: Vec<(i32, Option<String>)> = tags.iter().map(|&t| (t, name_of(t))).collect();
+    let chosen = match group {
+        None => {
+            let used = raw
+                .faces
+                .iter()
+                .flat_map(|f| f.groups.iter().copied())
+                .collect::<std::collections::BTreeSet<_>>();
+            if used.len() > 1 {
+                return Err(GmshError::SeveralSurfaces {
+                    available: used.iter().map(|&t| (t, name_of(t))).collect(),
+                });
+            }
+            None
+        }
+        Some(g) => {
+            let tag = match g {
+                PhysicalGroup::Tag(t) => Some(*t),
+                PhysicalGroup::Name(n) => names
+                    .iter()
+                    .find(|(d, _, m)| *d == 2 && m == n)
+                    .map(|(_, t, _)| *t),
+            };
+            match tag {
+                Some(t) if tags.contains(&t) => Some(t),
+                _ => {
+                    return Err(GmshError::UnknownGroup {
+                        group: g.clone(),
+                        available,
+                    });
+                }
+            }
+        }
+    };
+    let faces: Vec<&RawFace> = raw
+        .faces
+        .iter()
+        .filter(|f| chosen.is_none_or(|t| f.groups.contains(&t)))
+        .collect();
+    if faces.is_empty() {
+        return Err(GmshError::NoSurface {
+            group: group.cloned(),
+        });
+    }
+    if let Some(f) = faces.iter().find(|f| f.kind != 2 || f.nodes.len() != 3) {
+        return Err(GmshError::NotTriangle {
+            element_tag: f.element_tag,
+            kind: face_name(f.kind),
+        });
+    }
+    let slot: std::collections::HashMap<u64, usize> = raw
+        .nodes
+        .iter()
+        .enumerate()
+        .map(|(i, (tag, _))| (*tag, i))
+        .collect();
+    // The nodes the triangles use, in the file's node order.
+    let mut used = vec![usize::MAX; raw.nodes.len()];
+    let mut file_triangles = Vec::with_capacity(faces.len());
+    for f in &faces {
+        let mut t = [0usize; 3];
+        for (k, tag) in f.nodes.iter().enumerate() {
+            t[k] = *slot.get(tag).ok_or(GmshError::UnknownNodeTag {
+                element_tag: f.element_tag,
+                node_tag: *tag,
+            })?;
+            used[t[k]] = 0;
+        }
+        file_triangles.push(t);
+    }
+    let (mut nodes, mut node_tags) = (Vec::new(), Vec::new());
+    for (i, (tag, p)) in raw.nodes.iter().enumerate() {
+        if used[i] == 0 {
+            used[i] = nodes.len();
+            nodes.push(*p);
+            node_tags.push(*tag);
+        }
+    }
+    Ok(GmshSurface {
+        nodes,
+        node_tags,
+        triangles: file_triangles.iter().map(|t| t.map(|i| used[i])).collect(),
+        element_tags: faces.iter().map(|f| f.element_tag).collect(),
+    })
+}
+
+/// A readable name of a surface element type (Gmsh type numbers).
+fn face_name(kind: i32) -> String {
+    match kind {
+        2 => "3-node triangle".to_owned(),
+        3 => "4-node quadrangle".to_owned(),
+        9 => "6-node triangle".to_owned(),
+        10 => "9-node quadrangle".to_owned(),
+        16 => "8-node quadrangle".to_owned(),
+        20 => "9-node triangle".to_owned(),
+        21 => "10-node triangle".to_owned(),
+        k => format!("surface element of type {k}"),
+    }
+}
+
+/// The `$PhysicalNames` section, `(dimension, tag, name)` per entry (empty without one). The
+/// section is text in ASCII and binary files alike, written before the node and element data;
+/// it is looked for at the start of a line before `$Nodes`.
+fn physical_names(bytes: &[u8]) -> Result<Vec<(i32, i32, String)>, GmshError> {
+    let find = |what: &[u8]| {
+        bytes
+            .windows(what.len())
+            .position(|w| w == what)
+            .map(|i| i + 1)
+    };
+    let Some(start) = find(b"\n$PhysicalNames") else {
+        return Ok(Vec::new());
+    };
+    if find(b"\n$Nodes").is_some_and(|n| n < start) {
+        return Ok(Vec::new());
+    }
+    let end = bytes[start..]
+        .windows(b"$EndPhysicalNames".len())
+        .position(|w| w == b"$EndPhysicalNames")
+        .ok_or_else(|| GmshError::Parse("$PhysicalNames has no $EndPhysicalNames".into()))?;
+    let text = std::str::from_utf8(&bytes[start..start + end])
+        .map_err(|_| GmshError::Parse("$PhysicalNames is not text".into()))?;
+    let mut lines = text
+        .lines()
+        .skip(1)
+        .map(str::trim)
+        .filter(|l| !l.is_empty());
+    let bad = |l: &str| {
+        GmshError::Parse(format!(
+            "$PhysicalNames: `{}` is not `dimension tag \"name\"`",
+            l.chars().take(60).collect::<String>()
+        ))
+    };
+    let n: usize = match lines.next() {
+        Some(l) => l.parse().map_err(|_| bad(l))?,
+        None => 0,
+    };
+    let mut out = Vec::new();
+    for l in lines {
+        let mut it = l.splitn(3, char::is_whitespace);
+        let (Some(d), Some(t), Some(name)) = (it.next(), it.next(), it.next()) else {
+            return Err(bad(l));
+        };
+        let (Ok(d), Ok(t)) = (d.parse(), t.parse()) else {
+            return Err(bad(l));
+        };
+        let name = name.trim();
+        let name = name
+            .strip_prefix('"')
+            .and_then(|s| s.strip_suffix('"'))
+            .unwrap_or(name);
+        out.push((d, t, name.to_owned()));
+    }
+    if out.len() != n {
+        return Err(GmshError::CountMismatch {
+            section: "$PhysicalNames",
+            header: n as u64,
+            found: out.len() as u64,
+        });
+    }
+    Ok(out)
 }
 
 /// The header counts of the node and element sections against what their blocks hold.
@@ -195,12 +497,34 @@ pub(super) struct RawGmsh {
     pub nodes: Vec<(u64, Vector3<f64>)>,
     /// Element tag, node tags and physical tag (0: none) of each 4-node tetrahedron.
     pub tets: Vec<(u64, [u64; 4], i32)>,
+    /// Why the file's volume elements cannot make a tetrahedral mesh (the first volume element
+    /// that is not a 4-node tetrahedron, or a volume in two physical groups), kept for
+    /// [`RawGmsh::into_mesh`]: a surface read from the same file does not need the volumes.
+    pub volume_error: Option<GmshError>,
+    /// The surface (2-D) elements, in file order.
+    pub faces: Vec<RawFace>,
+}
+
+/// A surface (2-D) element as the file gives it.
+pub(super) struct RawFace {
+    /// Tag of the element in the file.
+    pub element_tag: u64,
+    /// Gmsh element type (2: the 3-node triangle).
+    pub kind: i32,
+    /// Node tags.
+    pub nodes: Vec<u64>,
+    /// Physical groups it belongs to (4.1: those of its surface entity; 2.2: its first tag,
+    /// unless 0).
+    pub groups: Vec<i32>,
 }
 
 impl RawGmsh {
     /// The mesh: nodes that no tetrahedron uses dropped, the rest renumbered in file order,
     /// elements oriented positively, then validated (an invalid element named by its tag).
     fn into_mesh(self) -> Result<TetMesh, GmshError> {
+        if let Some(e) = self.volume_error {
+            return Err(e);
+        }
         let slot: std::collections::HashMap<u64, usize> = self
             .nodes
             .iter()
@@ -268,13 +592,34 @@ fn parse_v4(bytes: &[u8]) -> Result<RawGmsh, GmshError> {
         .entities
         .as_ref()
         .map_or(&[], |e| e.volumes.as_slice());
+    let surfaces: &[mshio::mshfile::Surface<i32, f64>] = file
+        .data
+        .entities
+        .as_ref()
+        .map_or(&[], |e| e.surfaces.as_slice());
     if let Some(elements) = &file.data.elements {
         for block in &elements.element_blocks {
+            if block.entity_dim == 2 {
+                let groups = surfaces
+                    .iter()
+                    .find(|s| s.tag == block.entity_tag)
+                    .map_or_else(Vec::new, |s| s.physical_tags.clone());
+                for el in &block.elements {
+                    raw.faces.push(RawFace {
+                        element_tag: el.element_tag,
+                        kind: block.element_type as i32,
+                        nodes: el.nodes.clone(),
+                        groups: groups.clone(),
+                    });
+                }
+                continue;
+            }
             if block.element_type != mshio::mshfile::ElementType::Tet4 {
                 if block.entity_dim == 3
                     && let Some(el) = block.elements.first()
+                    && raw.volume_error.is_none()
                 {
-                    return Err(GmshError::NotTetrahedral {
+                    raw.volume_error = Some(GmshError::NotTetrahedral {
                         element_tag: el.element_tag,
                         kind: volume_name(&format!("{:?}", block.element_type)),
                     });
@@ -287,10 +632,13 @@ fn parse_v4(bytes: &[u8]) -> Result<RawGmsh, GmshError> {
                     [] => 0,
                     [t] => *t,
                     more => {
-                        return Err(GmshError::AmbiguousRegion {
-                            entity: block.entity_tag,
-                            tags: more.to_vec(),
-                        });
+                        if raw.volume_error.is_none() {
+                            raw.volume_error = Some(GmshError::AmbiguousRegion {
+                                entity: block.entity_tag,
+                                tags: more.to_vec(),
+                            });
+                        }
+                        0
                     }
                 },
             };

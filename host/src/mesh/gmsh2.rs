@@ -12,7 +12,7 @@
 //! sections (`$PhysicalNames`, `$NodeData`, …) are skipped. Binary files must be little endian
 //! with 8-byte reals.
 
-use super::gmsh::{GmshError, RawGmsh};
+use super::gmsh::{GmshError, RawFace, RawGmsh};
 use nalgebra::Vector3;
 
 /// Dimension and node count of a Gmsh element type (`None`: a type this reader does not know).
@@ -255,14 +255,41 @@ fn element(
             "element {element_tag} has type {kind}, which is not a Gmsh 2.2 element type read here"
         ))
     })?;
+    if dim == 2 {
+        let nodes = nodes
+            .iter()
+            .map(|&v| {
+                u64::try_from(v).map_err(|_| GmshError::UnknownNodeTag {
+                    element_tag,
+                    node_tag: v as u64,
+                })
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        let group = tags.first().copied().unwrap_or(0);
+        let group = i32::try_from(group).map_err(|_| {
+            parse_error(format!(
+                "element {element_tag}: physical tag {group} is out of range"
+            ))
+        })?;
+        raw.faces.push(RawFace {
+            element_tag,
+            kind,
+            nodes,
+            groups: if group == 0 { Vec::new() } else { vec![group] },
+        });
+        return Ok(());
+    }
     if dim < 3 {
         return Ok(());
     }
     if kind != 4 {
-        return Err(GmshError::NotTetrahedral {
-            element_tag,
-            kind: element_name(kind),
-        });
+        if raw.volume_error.is_none() {
+            raw.volume_error = Some(GmshError::NotTetrahedral {
+                element_tag,
+                kind: element_name(kind),
+            });
+        }
+        return Ok(());
     }
     let mut t = [0u64; 4];
     for (k, &v) in nodes.iter().take(4).enumerate() {

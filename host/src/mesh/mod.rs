@@ -14,7 +14,10 @@ mod validate;
 mod vtk;
 
 pub use generate::{BoxDivisions, box_divisions_for_target, box_mesh, box_mesh_with_divisions};
-pub use gmsh::{GmshError, read_gmsh, read_gmsh_bytes, write_gmsh_ascii, write_gmsh_binary};
+pub use gmsh::{
+    GmshError, GmshSurface, PhysicalGroup, read_gmsh, read_gmsh_bytes, read_gmsh_surface,
+    read_gmsh_surface_bytes, write_gmsh_ascii, write_gmsh_binary,
+};
 pub use validate::{MeshError, degenerate_ratio_threshold};
 pub use vtk::{VtkError, read_legacy_vtk_bytes, read_vtk, read_vtu_bytes};
 

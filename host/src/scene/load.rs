@@ -104,11 +104,16 @@ impl Scene {
                 {
                     *mesh = dir.join(&*mesh);
                 }
-                crate::obstacle_mesh::read_surface_mesh(mesh).map_err(|reason| SceneError {
-                    file: file.clone(),
-                    field: format!("obstacles[{k}].mesh"),
-                    reason: format!("{}: {reason}", mesh.display()),
-                })?;
+                crate::obstacle_mesh::read_surface_mesh(mesh, o.physical_group.as_ref()).map_err(
+                    |e| SceneError {
+                        file: file.clone(),
+                        field: format!(
+                            "obstacles[{k}].{}",
+                            if e.in_group { "physical_group" } else { "mesh" }
+                        ),
+                        reason: format!("{}: {}", mesh.display(), e.reason),
+                    },
+                )?;
             }
         }
         if let (Some(urdf), Some(dir)) = (scene.robot.urdf.as_mut(), path.parent())

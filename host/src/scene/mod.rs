@@ -593,7 +593,7 @@ pub struct ObstacleSpec {
     /// A sphere's radius [mm].
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub radius: Option<f64>,
-    /// A closed surface mesh file (`.stl`, binary or ASCII, or `.obj`), relative to the scene
+    /// A closed surface mesh file (`.stl`, binary or ASCII, `.obj` or Gmsh `.msh`), relative to the scene
     /// file, its coordinates in mm in the rest configuration.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub mesh: Option<PathBuf>,
@@ -603,6 +603,10 @@ pub struct ObstacleSpec {
     /// Translation added to the mesh's (scaled) coordinates [mm].
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub translation: Option<[f64; 3]>,
+    /// A Gmsh mesh only: the physical surface group to read (its tag or its name); needed when
+    /// the file's surface elements lie in several groups.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub physical_group: Option<crate::mesh::PhysicalGroup>,
 }
 
 impl ObstacleSpec {
@@ -615,6 +619,7 @@ impl ObstacleSpec {
             mesh: None,
             scale: None,
             translation: None,
+            physical_group: None,
         }
     }
 }

@@ -481,11 +481,12 @@ impl Scene {
                     let placed = [
                         ("scale", o.scale.is_some()),
                         ("translation", o.translation.is_some()),
+                        ("physical_group", o.physical_group.is_some()),
                     ];
                     if let Some((f, _)) = placed.iter().find(|(_, given)| *given) {
                         return fail(
                             &field(f),
-                            "only a mesh obstacle (`mesh`) is placed by `scale` and `translation`; a sphere by `center`",
+                            "only a mesh obstacle (`mesh`) is placed by `scale` and `translation` (and chosen in a Gmsh file by `physical_group`); a sphere by `center`",
                         );
                     }
                 }
