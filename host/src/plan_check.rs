@@ -104,6 +104,7 @@ fn obstacles<const N: usize>(scene: &Scene, world: &World<N>) -> Result<(), Setu
             Obstacle::Mesh {
                 vertices,
                 triangles,
+                ..
             } => {
                 let rest = &world.gel.mesh().nodes;
                 let tets = &world.gel.mesh().tets;

@@ -250,6 +250,89 @@ pub struct ClosedSurface {
     mesh: TriMesh,
 }
 
+/// A closed surface whose vertices move (a mesh obstacle, each vertex embedded in the gel): the
+/// parry mesh is kept with the vertices it was built at, and rebuilt only when they have moved
+/// since the last query; at unchanged vertices (the step's observers after its last stage: the
+/// summary, `steps.csv`, the ParaView frames) it is reused.
+///
+/// It is rebuilt, not refitted: parry 0.31.1's `TriMesh::set_vertices` (the BVH built for the
+/// first vertices, its boxes refitted; the pseudo-normals recomputed) answers the same queries
+/// but breaks ties between equidistant triangles in another order, which moved one clearance
+/// of `scenes/obstacles/mesh_box.toml` (a needle segment parallel to a face of two triangles)
+/// by 5.6e-14 mm at step 565; a rebuilt mesh gives every run bit for bit as before.
+pub struct DeformingSurface {
+    triangles: Vec<[usize; 3]>,
+    /// The vertices of the last query and the surface at them.
+    state: std::sync::Mutex<Option<Box<SurfaceAt>>>,
+}
+
+/// A surface and the vertices it was built at.
+type SurfaceAt = (Vec<Vector3<f64>>, ClosedSurface);
+
+impl DeformingSurface {
+    /// A surface of these triangles (outward), its vertices given at each query.
+    pub fn new(triangles: Vec<[usize; 3]>) -> Self {
+        Self {
+            triangles,
+            state: std::sync::Mutex::new(None),
+        }
+    }
+
+    /// The triangles.
+    pub fn triangles(&self) -> &[[usize; 3]] {
+        &self.triangles
+    }
+
+    /// [`ClosedSurface::clearance`] of `segments` to the surface at `vertices` (the same count
+    /// and order at every call); `None` without segments or for a surface parry refuses.
+    pub fn clearance(
+        &self,
+        vertices: &[Vector3<f64>],
+        segments: &[(Vector3<f64>, Vector3<f64>)],
+    ) -> Option<SurfaceClearance> {
+        let mut state = self
+            .state
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        match state.as_deref_mut() {
+            Some((at, surface)) if at.len() == vertices.len() => {
+                if at.as_slice() != vertices {
+                    *surface = ClosedSurface::new(vertices, &self.triangles)?;
+                    at.copy_from_slice(vertices);
+                }
+            }
+            _ => {
+                *state = Some(Box::new((
+                    vertices.to_vec(),
+                    ClosedSurface::new(vertices, &self.triangles)?,
+                )));
+            }
+        }
+        state.as_ref()?.1.clearance(segments)
+    }
+}
+
+impl Clone for DeformingSurface {
+    fn clone(&self) -> Self {
+        Self::new(self.triangles.clone())
+    }
+}
+
+impl PartialEq for DeformingSurface {
+    /// The same triangles (the cached parry mesh is not compared).
+    fn eq(&self, other: &Self) -> bool {
+        self.triangles == other.triangles
+    }
+}
+
+impl std::fmt::Debug for DeformingSurface {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("DeformingSurface")
+            .field("triangles", &self.triangles.len())
+            .finish_non_exhaustive()
+    }
+}
+
 /// Samples per segment of the search for the deepest point of a polyline inside a surface.
 const DEPTH_SAMPLES: usize = 32;
 

@@ -8,7 +8,7 @@
 
 use crate::error::SetupError;
 use crate::free_motion::{GelModel, NeedleModel};
-use crate::proximity::{ClosedSurface, Embedded, SurfaceClearance, TetLocator};
+use crate::proximity::{DeformingSurface, Embedded, SurfaceClearance, TetLocator};
 use crate::scene::SampledPath;
 use crate::support_motion::SupportMotion;
 use nalgebra::{Matrix3, Rotation3, Vector3};
@@ -73,6 +73,8 @@ pub enum Obstacle {
         vertices: Vec<Embedded>,
         /// Triangles (outward).
         triangles: Vec<[usize; 3]>,
+        /// The surface's parry mesh, updated as the vertices move.
+        surface: DeformingSurface,
     },
 }
 
@@ -230,6 +232,7 @@ impl<const N: usize> World<N> {
                     Ok(Obstacle::Mesh {
                         vertices,
                         triangles: m.triangles.clone(),
+                        surface: DeformingSurface::new(m.triangles.clone()),
                     })
                 }
             })
@@ -396,13 +399,13 @@ impl<const N: usize> World<N> {
     }
 
     /// The signed clearance of the inserted needle to a mesh obstacle at its current (deformed)
-    /// vertices, with its closest pair ([`ClosedSurface::clearance`]); `segment` and `fraction`
-    /// are the needle's (segment `k` between nodes `k` and `k + 1`). `None` when nothing is
-    /// inserted.
+    /// vertices, with its closest pair ([`crate::proximity::ClosedSurface::clearance`], the
+    /// obstacle's `surface` updated to the vertices); `segment` and `fraction` are the needle's
+    /// (segment `k` between nodes `k` and `k + 1`). `None` when nothing is inserted.
     pub fn mesh_clearance(
         &self,
         vertices: &[Embedded],
-        triangles: &[[usize; 3]],
+        surface: &DeformingSurface,
     ) -> Option<SurfaceClearance> {
         let inserted = self.inserted_segments();
         if inserted.is_empty() {
@@ -413,8 +416,7 @@ impl<const N: usize> World<N> {
             .iter()
             .map(|&(k, f0)| (nodes[k] + f0 * (nodes[k + 1] - nodes[k]), nodes[k + 1]))
             .collect();
-        let surface = ClosedSurface::new(&self.obstacle_vertices(vertices), triangles)?;
-        let mut c = surface.clearance(&segments)?;
+        let mut c = surface.clearance(&self.obstacle_vertices(vertices), &segments)?;
         // Back to the needle's segment and fraction.
         let (k, f0) = inserted[c.segment];
         c.segment = k;
@@ -456,10 +458,9 @@ impl<const N: usize> World<N> {
                     best - radius
                 }
                 Obstacle::Mesh {
-                    vertices,
-                    triangles,
+                    vertices, surface, ..
                 } => self
-                    .mesh_clearance(vertices, triangles)
+                    .mesh_clearance(vertices, surface)
                     .map_or(f64::INFINITY, |c| c.value),
             })
             .collect()

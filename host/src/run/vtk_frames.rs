@@ -223,6 +223,7 @@ fn obstacles<const N: usize>(world: &World<N>) -> Grid {
             Obstacle::Mesh {
                 vertices,
                 triangles,
+                ..
             } => {
                 grid.points.extend(world.obstacle_vertices(vertices));
                 grid.cells.extend(

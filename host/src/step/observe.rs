@@ -132,8 +132,9 @@ pub fn clearance_observations<const N: usize>(
             Obstacle::Mesh {
                 vertices,
                 triangles,
+                surface,
             } => {
-                let c = world.mesh_clearance(vertices, triangles)?;
+                let c = world.mesh_clearance(vertices, surface)?;
                 let tri = triangles[c.triangle];
                 let obstacle = (0..3)
                     .map(|i| {
