@@ -253,7 +253,8 @@ pub struct ClosedSurface {
 /// A closed surface whose vertices move (a mesh obstacle, each vertex embedded in the gel): the
 /// parry mesh is kept with the vertices it was built at, and rebuilt only when they have moved
 /// since the last query; at unchanged vertices (the step's observers after its last stage: the
-/// summary, `steps.csv`, the ParaView frames) it is reused.
+/// summary, `steps.csv`, the ParaView frames; and the next step's clearance rows, which are
+/// taken at the gel's positions the last step ended with) it is reused.
 ///
 /// It is rebuilt, not refitted: parry 0.31.1's `TriMesh::set_vertices` (the BVH built for the
 /// first vertices, its boxes refitted; the pseudo-normals recomputed) answers the same queries
