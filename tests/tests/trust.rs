@@ -324,3 +324,49 @@ fn scene_file_dev_zero_is_refused_without_reading_it() {
     let e = Scene::load(Path::new("/dev/zero")).expect_err("/dev/zero is no scene");
     assert!(e.to_string().contains("not a regular file"), "{e}");
 }
+
+/// The suite's copies of the tissue and obstacle example scenes (`scenes/suite/tissue_lesion`,
+/// `obstacle_surfaces`, `breathing`) say the same as their originals but for the name and the
+/// relative paths of their files: a change to one that misses the other fails here.
+#[test]
+fn the_suites_copies_of_example_scenes_match_their_originals() {
+    for (copy, original, rel) in [
+        ("tissue_lesion", "tissue/lesion", "../tissue/"),
+        ("obstacle_surfaces", "obstacles/mesh_msh", "../obstacles/"),
+        ("breathing", "tissue/breathing_complex", "../tissue/"),
+    ] {
+        let read = |p: &str| {
+            std::fs::read_to_string(repo().join(format!("scenes/{p}.toml"))).expect("scene file")
+        };
+        let (c, o) = (read(&format!("suite/{copy}")), read(original));
+        let header: Vec<&str> = c.lines().take(3).collect();
+        assert!(
+            header.iter().all(|l| l.starts_with('#')) && header[0].contains(original),
+            "{copy}: a three-line header naming scenes/{original}.toml"
+        );
+        let name = |t: &str| {
+            t.lines()
+                .find_map(|l| l.strip_prefix("name = "))
+                .map(str::to_owned)
+        };
+        assert_eq!(name(&c).as_deref(), Some(format!("\"{copy}\"").as_str()));
+        let mut first = true;
+        let body: Vec<String> = c
+            .lines()
+            .skip(3)
+            .map(|l| {
+                if first && l.starts_with("name = ") {
+                    first = false;
+                    format!("name = {}", name(&o).expect("a name"))
+                } else {
+                    l.replacen(&format!("\"{rel}"), "\"", 1)
+                }
+            })
+            .collect();
+        let want: Vec<&str> = o.lines().collect();
+        assert_eq!(
+            body, want,
+            "scenes/suite/{copy}.toml against scenes/{original}.toml"
+        );
+    }
+}
