@@ -110,37 +110,7 @@ fn a_7_joint_arm_in_two_processes_equals_one_process_bit_for_bit() {
         "two-process run: {:?}",
         two.summary.stopped
     );
-    for (a, b) in one.reports.iter().zip(&two.reports) {
-        assert_eq!(a.step, b.step);
-        assert_eq!(a.c.to_bits(), b.c.to_bits(), "step {}: c", a.step);
-        for k in 0..3 {
-            assert_eq!(
-                a.tip[k].to_bits(),
-                b.tip[k].to_bits(),
-                "step {}: tip {k}",
-                a.step
-            );
-        }
-        assert_eq!((a.q.len(), b.q.len()), (7, 7), "step {}: joints", a.step);
-        for k in 0..7 {
-            assert_eq!(a.q[k].to_bits(), b.q[k].to_bits(), "step {}: q {k}", a.step);
-        }
-        assert_eq!(
-            a.error.to_bits(),
-            b.error.to_bits(),
-            "step {}: error",
-            a.step
-        );
-        for k in 0..3 {
-            assert_eq!(
-                a.lambda_norms[k].to_bits(),
-                b.lambda_norms[k].to_bits(),
-                "step {}: λ norm {k}",
-                a.step
-            );
-        }
-        assert_eq!(a.solver, b.solver, "step {}: solver report", a.step);
-    }
+    assert_same_steps(&one.reports, &two.reports, 7);
     assert_eq!(
         one.summary.e_mean_mm.to_bits(),
         two.summary.e_mean_mm.to_bits()

@@ -105,36 +105,7 @@ fn two_processes_equal_one(test: &str, period: Option<Duration>) {
         "two-process run: {:?}",
         two.summary.stopped
     );
-    for (a, b) in one.reports.iter().zip(&two.reports) {
-        assert_eq!(a.step, b.step);
-        assert_eq!(a.c.to_bits(), b.c.to_bits(), "step {}: c", a.step);
-        for k in 0..3 {
-            assert_eq!(
-                a.tip[k].to_bits(),
-                b.tip[k].to_bits(),
-                "step {}: tip {k}",
-                a.step
-            );
-        }
-        for k in 0..6 {
-            assert_eq!(a.q[k].to_bits(), b.q[k].to_bits(), "step {}: q {k}", a.step);
-        }
-        assert_eq!(
-            a.error.to_bits(),
-            b.error.to_bits(),
-            "step {}: error",
-            a.step
-        );
-        for k in 0..3 {
-            assert_eq!(
-                a.lambda_norms[k].to_bits(),
-                b.lambda_norms[k].to_bits(),
-                "step {}: λ norm {k}",
-                a.step
-            );
-        }
-        assert_eq!(a.solver, b.solver, "step {}: solver report", a.step);
-    }
+    assert_same_steps(&one.reports, &two.reports, 6);
     let st = host.stats();
     assert_eq!(st.commands_accepted, STEPS as u64);
     assert_eq!(st.commands_rejected, 0);

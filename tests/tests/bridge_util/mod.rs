@@ -197,3 +197,49 @@ impl Drop for ControllerThread {
         }
     }
 }
+
+/// Two runs of the same scene (one process, two) step for step, bit for bit: target, tip, the
+/// `joints` joints, error, λ norms and the solver's report.
+pub fn assert_same_steps(
+    one: &[needle_host::step::StepReport],
+    two: &[needle_host::step::StepReport],
+    joints: usize,
+) {
+    assert_eq!(one.len(), two.len(), "steps");
+    for (a, b) in one.iter().zip(two) {
+        assert_eq!(a.step, b.step);
+        assert_eq!(a.c.to_bits(), b.c.to_bits(), "step {}: c", a.step);
+        for k in 0..3 {
+            assert_eq!(
+                a.tip[k].to_bits(),
+                b.tip[k].to_bits(),
+                "step {}: tip {k}",
+                a.step
+            );
+        }
+        assert_eq!(
+            (a.q.len(), b.q.len()),
+            (joints, joints),
+            "step {}: joints",
+            a.step
+        );
+        for k in 0..joints {
+            assert_eq!(a.q[k].to_bits(), b.q[k].to_bits(), "step {}: q {k}", a.step);
+        }
+        assert_eq!(
+            a.error.to_bits(),
+            b.error.to_bits(),
+            "step {}: error",
+            a.step
+        );
+        for k in 0..3 {
+            assert_eq!(
+                a.lambda_norms[k].to_bits(),
+                b.lambda_norms[k].to_bits(),
+                "step {}: λ norm {k}",
+                a.step
+            );
+        }
+        assert_eq!(a.solver, b.solver, "step {}: solver report", a.step);
+    }
+}
