@@ -60,14 +60,6 @@ fn spheres_as_meshes(mut scene: Scene, obj: &Path) -> Scene {
     scene
 }
 
-/// The smallest clearance of a run over its obstacles [mm].
-fn smallest_clearance(s: &needle_host::run::RunSummary) -> f64 {
-    s.clearances
-        .iter()
-        .map(|c| c.min_mm)
-        .fold(f64::INFINITY, f64::min)
-}
-
 /// The example scene `mesh_sphere` (`simple` with its sphere as a 320-triangle OBJ) measures
 /// the clearance of `simple`'s analytic sphere within the tessellation error and the gel's
 /// deformation of the obstacle (the polyhedron lies at most 0.054 mm inside the sphere of radius
@@ -87,7 +79,7 @@ fn a_triangulated_sphere_measures_the_analytic_sphere_clearance_in_a_run() {
     let sphere = run(&load("scenes/simple.toml"), &RunOptions::default(), |_| {})
         .expect("run")
         .summary;
-    let (m, s) = (smallest_clearance(&mesh), smallest_clearance(&sphere));
+    let (m, s) = (mesh.min_clearance_mm, sphere.min_clearance_mm);
     eprintln!("min clearance: mesh {m:.4} mm, sphere {s:.4} mm");
     assert!((m - s).abs() < 0.054 + 0.01, "mesh {m}, sphere {s}");
     assert!((mesh.e_mean_mm - sphere.e_mean_mm).abs() < 1e-9);
@@ -106,7 +98,7 @@ fn the_mesh_box_example_reaches_its_target_clear_of_the_box() {
     )
     .expect("run")
     .summary;
-    let min = smallest_clearance(&s);
+    let min = s.min_clearance_mm;
     eprintln!(
         "mesh_box: e_mean {:.3} e_max {:.3} e_final {:.4} mm, min clearance {min:.3} mm",
         s.e_mean_mm, s.e_max_mm, s.e_final_mm
@@ -183,12 +175,11 @@ fn a_needle_held_by_a_mesh_obstacle_is_stopped_as_blocked_not_driven_into_it() {
     let why = s.stop_reason.as_ref().expect("a stop reason");
     eprintln!(
         "{why:?}, {} steps, min clearance {:.3} mm",
-        s.steps,
-        smallest_clearance(&s)
+        s.steps, s.min_clearance_mm
     );
     assert!(matches!(why, StopReason::Blocked { .. }), "{why:?}");
     assert_eq!(s.outcome, Outcome::MissedTarget, "{:?}", s.stopped);
-    let min = smallest_clearance(&s);
+    let min = s.min_clearance_mm;
     assert!(min > 0.0, "obstacle hit: {min} mm");
 }
 

@@ -15,14 +15,6 @@ fn run_scene(rel: &str) -> needle_host::run::RunSummary {
         .summary
 }
 
-/// The smallest clearance of a run over its obstacles [mm].
-fn smallest_clearance(s: &needle_host::run::RunSummary) -> f64 {
-    s.clearances
-        .iter()
-        .map(|c| c.min_mm)
-        .fold(f64::INFINITY, f64::min)
-}
-
 #[test]
 #[ignore = "scenario (release, ~5 s): run with --include-ignored"]
 fn helix_half_held_at_its_clearance_margin_until_it_slipped_into_the_obstacle_no_longer_hits_it() {
@@ -33,7 +25,7 @@ fn helix_half_held_at_its_clearance_margin_until_it_slipped_into_the_obstacle_no
     // confirmed by the constraint solve, the needle is no longer held there: it runs to the end
     // (8.6 mm from the target) and stays clear of both obstacles.
     let s = run_scene("data/scenes/helix_half_seed2026.toml");
-    let min = smallest_clearance(&s);
+    let min = s.min_clearance_mm;
     assert!(min > 0.0, "obstacle hit: {min} mm");
     assert_ne!(s.outcome, Outcome::ObstacleHit);
 }
@@ -53,7 +45,7 @@ fn needle_thin_held_at_its_clearance_margin_is_stopped_as_blocked() {
     assert!(!why.is_divergence());
     assert_eq!(s.outcome, Outcome::MissedTarget, "{:?}", s.stopped);
     assert_eq!(s.outcome.exit_code(), 4);
-    let min = smallest_clearance(&s);
+    let min = s.min_clearance_mm;
     assert!(min > 0.0, "obstacle hit: {min} mm");
     assert!(s.steps < 617, "ran to the end: {} steps", s.steps);
     assert!(s.stopped.as_deref().is_some_and(|m| m.contains("blocked")));

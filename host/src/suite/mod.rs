@@ -172,14 +172,6 @@ pub fn exit_code(rows: &[SuiteRow]) -> u8 {
     .map_or(0, Outcome::exit_code)
 }
 
-/// The smallest clearance of a run over its obstacles (+∞ without obstacles) [mm].
-fn min_clearance(s: &RunSummary) -> f64 {
-    s.clearances
-        .iter()
-        .map(|c| c.min_mm)
-        .fold(f64::INFINITY, f64::min)
-}
-
 /// Steps to the target over the nominal steps (none when never reached).
 fn steps_ratio(s: &RunSummary) -> Option<f64> {
     s.steps_to_target
@@ -243,7 +235,7 @@ fn worst_of(rows: &[&SuiteRow]) -> Vec<String> {
              (≤ 1.2), {never} runs never within 1 mm of the end; Gauss-Seidel cap hits {} (must 0)",
             cell(
                 s.iter()
-                    .map(|x| min_clearance(x))
+                    .map(|x| x.min_clearance_mm)
                     .fold(f64::INFINITY, f64::min),
                 3
             ),
@@ -286,7 +278,7 @@ fn cells(r: &SuiteRow) -> Vec<String> {
         cell(s.e_final_mm, 3),
         cell(s.path_deviation_mean_mm, 3),
         cell(s.path_deviation_max_mm, 3),
-        cell(min_clearance(s), 3),
+        cell(s.min_clearance_mm, 3),
         s.steps_to_target.map_or("—".to_owned(), |k| k.to_string()),
         s.steps_nominal.to_string(),
         s.gs_not_converged_steps.to_string(),
