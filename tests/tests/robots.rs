@@ -218,34 +218,8 @@ fn the_kr16_scene_robot_is_the_urdf_chain_placed_by_the_scene() {
 fn kr16_runs_the_complex_insertion_within_its_limits() {
     let scene = Scene::load(&repo().join("scenes/robots/kr16_complex.toml")).expect("scene");
     let robot = scene.robot().expect("robot");
-    let mut watch = JointWatch::new(*robot.limits(), scene.robot.dt);
-    let result = run(&scene, &RunOptions::default(), |r| watch.step(r)).expect("the run starts");
-    let s = result.summary;
-    eprintln!(
-        "kr16: {} · limit margin {} rad · speed {} of the limit",
-        serde_json::to_string(&s).unwrap_or_default(),
-        watch.worst_margin,
-        watch.worst_speed
-    );
-    assert_eq!(s.outcome, Outcome::Reached);
+    let s = insert_within_limits("kr16", &scene, *robot.limits(), 0.913, 4.43);
     assert_eq!(s.joints, 6);
-    assert!(s.e_mean_mm <= 0.913, "e_mean {}", s.e_mean_mm);
-    assert!(s.e_max_mm <= 4.43, "e_max {}", s.e_max_mm);
-    assert!(!s.obstacle_hit);
-    assert!(
-        watch.worst_margin > 0.1,
-        "a joint came within {} rad of a limit",
-        watch.worst_margin
-    );
-    assert!(
-        watch.worst_speed <= 1.0 + 1e-9,
-        "speed {} of the limit",
-        watch.worst_speed
-    );
-    assert_eq!(
-        s.limit_margin_min, watch.reported,
-        "the summary's minimum of the steps' margins"
-    );
 }
 
 /// The 7-joint LBR iiwa 14 from its URDF through the controller's own path: the objective a
@@ -343,19 +317,33 @@ fn iiwa_runs_the_complex_insertion_within_its_limits() {
     let scene = Scene::load(&repo().join("scenes/robots/iiwa_complex.toml")).expect("scene");
     assert_eq!(scene.joint_count(), Ok(7));
     let robot = scene.robot_n::<7>().expect("7 joints");
-    let mut watch = JointWatch::new(*robot.limits(), scene.robot.dt);
-    let result = run(&scene, &RunOptions::default(), |r| watch.step(r)).expect("the run starts");
+    let s = insert_within_limits("iiwa", &scene, *robot.limits(), 0.117, 1.3);
+    assert_eq!(s.joints, 7);
+    assert!(s.limit_margin_min > 0.3, "margin {}", s.limit_margin_min);
+}
+
+/// The whole insertion of `scene` with its `N` joints' `limits`: reached, e_mean and e_max
+/// within the bounds, no obstacle hit, every commanded joint more than 0.1 rad inside its
+/// limits and within its speed, and the summary's limit margin the steps' minimum.
+fn insert_within_limits<const N: usize>(
+    name: &str,
+    scene: &Scene,
+    limits: [JointLimit; N],
+    e_mean: f64,
+    e_max: f64,
+) -> needle_host::run::RunSummary {
+    let mut watch = JointWatch::new(limits, scene.robot.dt);
+    let result = run(scene, &RunOptions::default(), |r| watch.step(r)).expect("the run starts");
     let s = result.summary;
     eprintln!(
-        "iiwa: {} · limit margin {} rad · speed {} of the limit",
+        "{name}: {} · limit margin {} rad · speed {} of the limit",
         serde_json::to_string(&s).unwrap_or_default(),
         watch.worst_margin,
         watch.worst_speed
     );
     assert_eq!(s.outcome, Outcome::Reached);
-    assert_eq!(s.joints, 7);
-    assert!(s.e_mean_mm <= 0.117, "e_mean {}", s.e_mean_mm);
-    assert!(s.e_max_mm <= 1.3, "e_max {}", s.e_max_mm);
+    assert!(s.e_mean_mm <= e_mean, "e_mean {}", s.e_mean_mm);
+    assert!(s.e_max_mm <= e_max, "e_max {}", s.e_max_mm);
     assert!(!s.obstacle_hit);
     assert!(
         watch.worst_margin > 0.1,
@@ -367,6 +355,9 @@ fn iiwa_runs_the_complex_insertion_within_its_limits() {
         "speed {} of the limit",
         watch.worst_speed
     );
-    assert_eq!(s.limit_margin_min, watch.reported);
-    assert!(s.limit_margin_min > 0.3, "margin {}", s.limit_margin_min);
+    assert_eq!(
+        s.limit_margin_min, watch.reported,
+        "the summary's minimum of the steps' margins"
+    );
+    s
 }
