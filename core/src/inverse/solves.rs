@@ -380,10 +380,13 @@ impl<const M: usize, const N: usize> Controller<M, N> {
         frame: &ComplianceFrame<M, N>,
     ) -> Result<(), StepError> {
         self.start_product_ok = false;
-        self.gs.prepare_frame(frame)?;
         if !self.params.eliminate_base {
+            self.gs.prepare_frame(frame)?;
             return Ok(());
         }
+        // The reduced problem's factors replace the full frame's: of the full frame, only its
+        // checks (unless nothing is left after the base rows).
+        frame.validate()?;
         if !self.red.prepare(frame) {
             return Err(StepError::NotPositiveDefinite { stage: BASE_BLOCK });
         }
@@ -401,6 +404,8 @@ impl<const M: usize, const N: usize> Controller<M, N> {
                     ValidationError::NonFinite { .. } => StepError::NonFinite { stage: SCHUR },
                     e => StepError::InvalidFrame(e),
                 })?;
+        } else {
+            self.gs.prepare_frame(frame)?;
         }
         Ok(())
     }
