@@ -340,27 +340,35 @@ impl<const M: usize> BlockGs<M> {
         let m = padded(self.m, lanes, M);
         let mut change = [0.0f64; K];
         let GsBatch { lambda, res, .. } = batch;
+        let diag = &self.diag;
         for b in &self.blocks[..self.n_blocks] {
             let f = self.factors[b.start as usize..].as_flattened();
-            for (k, ((lambda, res), change)) in lambda
-                .iter_mut()
-                .zip(res.iter_mut())
-                .zip(change.iter_mut())
-                .enumerate()
-            {
-                if !active[k] {
-                    continue;
-                }
-                let mut s = Sweep {
-                    w,
-                    res,
-                    lambda,
-                    diag: &self.diag,
-                    m,
-                    change: *change,
+            let start = b.start as usize;
+            // The group's kind chosen once for all the solves.
+            macro_rules! each {
+                ($s:ident => $op:expr) => {
+                    for k in 0..K {
+                        if active[k] {
+                            let mut $s = Sweep {
+                                w,
+                                res: &mut res[k],
+                                lambda: &mut lambda[k],
+                                diag,
+                                m,
+                                change: change[k],
+                            };
+                            $op;
+                            change[k] = $s.change;
+                        }
+                    }
                 };
-                s.group(b, f, omega);
-                *change = s.change;
+            }
+            match b.kind {
+                KIND_SLIDING => each!(s => s.sliding(start, b.mu, b.r0, f, omega)),
+                KIND_CONTACT => each!(s => s.contact(start, b.mu, f)),
+                KIND_UNILATERAL => each!(s => s.unilateral(start, f[0], omega)),
+                KIND_BILATERAL => each!(s => s.bilateral(start, b.len as usize, f, omega)),
+                _ => {}
             }
         }
         change.map(finite_change)
