@@ -369,8 +369,8 @@ impl<const M: usize, const N: usize> Controller<M, N> {
         self.set_valid
     }
 
-    /// Validates the frame and factors the diagonal blocks, of the reduced problem too when the
-    /// base rows are eliminated.
+    /// Validates the frame and factors the diagonal blocks: of the reduced problem when the base
+    /// rows are eliminated (the full frame is then only validated), else of the frame.
     ///
     /// # Errors
     /// [`StepError::InvalidFrame`]; [`StepError::NotPositiveDefinite`] when `W_bb` or its Schur
