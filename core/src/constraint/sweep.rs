@@ -364,7 +364,11 @@ impl<const M: usize> BlockGs<M> {
                 };
             }
             match b.kind {
-                KIND_SLIDING => each!(s => s.sliding(start, b.mu, b.r0, f, omega)),
+                KIND_SLIDING => {
+                    // The factors unpacked once for all the solves.
+                    let (e, inv_axial) = (Sym2::unpack(&f[0..10]), f[10]);
+                    each!(s => s.sliding_with(start, b.mu, b.r0, &e, inv_axial, omega))
+                }
                 KIND_CONTACT => each!(s => s.contact(start, b.mu, f)),
                 KIND_UNILATERAL => each!(s => s.unilateral(start, f[0], omega)),
                 KIND_BILATERAL => each!(s => s.bilateral(start, b.len as usize, f, omega)),
@@ -573,9 +577,14 @@ impl<const M: usize> Sweep<'_, M> {
     /// row clamped to `|λ_a| ≤ μ_n |λ_l| + r_0`.
     #[inline(always)]
     fn sliding(&mut self, s: usize, mu: f64, r0: f64, f: &[f64], omega: f64) {
+        self.sliding_with(s, mu, r0, &Sym2::unpack(&f[0..10]), f[10], omega);
+    }
+
+    /// [`Self::sliding`] with its factors unpacked: the lateral block `e`, `1 / W_aa`.
+    #[inline(always)]
+    fn sliding_with(&mut self, s: usize, mu: f64, r0: f64, e: &Sym2, inv_axial: f64, omega: f64) {
         let (w, m) = (self.w, self.m);
         let lambda = &mut *self.lambda;
-        let e = Sym2::unpack(&f[0..10]);
         let (d1, d2) = e.solve(-self.res[s], -self.res[s + 1]);
         let (d1, d2) = (omega * d1, omega * d2);
         lambda[s] += d1;
@@ -587,7 +596,7 @@ impl<const M: usize> Sweep<'_, M> {
         let a = s + 2;
         // w_a after the lateral update.
         let wa = self.res[a] + d1 * w[s][a] + d2 * w[s + 1][a];
-        let new = (lambda[a] - omega * wa * f[10]).max(-bound).min(bound);
+        let new = (lambda[a] - omega * wa * inv_axial).max(-bound).min(bound);
         let da = new - lambda[a];
         lambda[a] = new;
         axpy3(
