@@ -3,6 +3,8 @@
 //! smaller steps and on both sides, and how far random joint steps of a few sizes can bring the
 //! tip's error down. For understanding a step the controller cannot make (every planned step
 //! rejected by its confirming solve, the joints held): a nonsmooth map, or a target out of reach.
+//! Also prints the scene's steering length `(E_n I / E_gel)^(1/4)` and the singular values of the
+//! tip's Jacobian by differences of 10⁻⁴ rad (how far the joints still move the tip sideways).
 //!
 //! ```sh
 //! cargo run --release -p needle-host --example probe_step -- scenes/suite/helix_half.toml 390 \
@@ -62,22 +64,31 @@ impl Probe {
             frame.rows()
         );
         println!("∂e/∂q_i by differences of h [mm/rad] (the controller's h = {joint_step}):");
+        let mut local = nalgebra::Matrix3x6::<f64>::zeros();
         for h in [joint_step, 1e-3, 1e-4, -1e-4, -1e-3, -joint_step] {
             print!("  h {h:+.0e}:");
             for i in 0..6 {
                 let mut qi = q;
                 qi[i] += h;
                 let t = self.objective(frame, &qi);
-                print!(
-                    " q{}[{:+7.2} {:+7.2} {:+7.2}]",
-                    i + 1,
-                    (t[0] - t0[0]) / h,
-                    (t[1] - t0[1]) / h,
-                    (t[2] - t0[2]) / h
-                );
+                let d = [0, 1, 2].map(|r| (t[r] - t0[r]) / h);
+                if h == 1e-4 {
+                    for (r, x) in d.iter().enumerate() {
+                        local[(r, i)] = *x;
+                    }
+                }
+                print!(" q{}[{:+7.2} {:+7.2} {:+7.2}]", i + 1, d[0], d[1], d[2]);
             }
             println!();
         }
+        // How far the joints can move the tip in each direction: along the needle (σ₁) and
+        // sideways (σ₂, σ₃), which the gel holding the shaft takes away.
+        let mut sigma: Vec<f64> = local.singular_values().iter().copied().collect();
+        sigma.sort_by(|a, b| b.total_cmp(a));
+        println!(
+            "singular values of the tip's Jacobian (h = 1e-4): {:.2} / {:.2} / {:.2} mm/rad",
+            sigma[0], sigma[1], sigma[2]
+        );
         // A fixed seed: the same probes on every run.
         let mut seed = 0x5eed_u64;
         let mut uniform = || {
@@ -154,6 +165,18 @@ fn main() -> ExitCode {
                 return ExitCode::from(2);
             }
         };
+    // The length over which the needle bends as a beam on an elastic foundation (the gel):
+    // short, and the gel holds the shaft so that the base barely steers the tip deep inside.
+    let (d, e_n, e_gel) = (
+        scene.needle.diameter,
+        scene.needle.young_modulus,
+        scene.gel.young_modulus,
+    );
+    let inertia = std::f64::consts::PI * d.powi(4) / 64.0;
+    println!(
+        "steering length (E_n I / E_gel)^(1/4) = {:.1} mm (needle Ø {d} mm, E_n {e_n} MPa, gel {e_gel} MPa)",
+        (e_n * inertia / e_gel).powf(0.25)
+    );
     let setup = match Setup::build(&scene) {
         Ok(s) => s,
         Err(e) => {

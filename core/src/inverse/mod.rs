@@ -59,7 +59,7 @@ pub use objective::{Objective, blend_factor, evaluate_objective};
 pub use params::{InverseParams, JacobianMode, StepMethod};
 pub use qp_step::QP_MAX_JOINTS;
 pub use solves::base_violation;
-pub use step::{MAX_BACKTRACKS, SUFFICIENT_DECREASE};
+pub use step::{MAX_BACKTRACKS, MAX_REPLANS, SUFFICIENT_DECREASE};
 
 use crate::constraint::{ActiveSet, BlockGs, GsBatch};
 use crate::kinematics::Robot;

@@ -123,6 +123,15 @@ pub struct InverseParams {
     /// `e` to the target over this distance, so that a tip off the path cuts back towards it
     /// over about `L` of insertion (a pure-pursuit law) instead of running parallel to it.
     pub aim_ahead: f64,
+    /// Re-plan a [`StepMethod::Qp`] step that its confirming solve rejected (default false):
+    /// the solve at the rejected joints gives the constrained map's actual change along the
+    /// step, which corrects the tip rows of `J` and the clearance gradients by a rank-one
+    /// secant (Broyden) update along it; the program is solved again with them, up to
+    /// [`super::MAX_REPLANS`] times, before the first stage's step and its halvings are tried.
+    /// Where the map is nonsmooth (the shaft sticking in the gel), the forward difference of
+    /// `joint_step` can send the step the wrong way; the secant along the rejected step sees
+    /// the response the step actually met.
+    pub replan_rejected: bool,
 }
 
 // SAFETY: `#[repr(u8)]` and the variant `Solve` has the discriminant 0.
@@ -152,6 +161,7 @@ crate::zeroed::impl_zeroable!(InverseParams {
     limit_avoidance,
     qp_heading,
     aim_ahead,
+    replan_rejected,
 });
 
 impl Default for InverseParams {
@@ -185,6 +195,7 @@ impl Default for InverseParams {
             limit_avoidance: 0.5,
             qp_heading: true,
             aim_ahead: 0.0,
+            replan_rejected: false,
         }
     }
 }

@@ -22,6 +22,10 @@ pub const SUFFICIENT_DECREASE: f64 = 0.1;
 /// final solve did not confirm it, before the joints are held.
 pub const MAX_BACKTRACKS: usize = 3;
 
+/// Most re-plans of a rejected [`super::StepMethod::Qp`] step with the secant-corrected model
+/// (with [`super::InverseParams::replan_rejected`]), before the first stage's step is tried.
+pub const MAX_REPLANS: usize = 2;
+
 /// The Jacobian `∂T/∂q`, 4 × N [mm/rad].
 pub(super) type Jacobian<const N: usize> = SMatrix<f64, 4, N>;
 
@@ -425,7 +429,16 @@ impl<const M: usize, const N: usize> Controller<M, N> {
         for i in 0..N {
             dq[i] = q_new[i] - frame.q[i];
         }
-        for attempt in 0..=MAX_BACKTRACKS + 1 {
+        // The model the candidate was planned with: secant-corrected after each rejected plan
+        // when `replan_rejected` is on.
+        let (mut jac, mut clear, mut dq1) = (*jac, *clear, dq1);
+        let mut replans = if self.params.replan_rejected {
+            MAX_REPLANS
+        } else {
+            0
+        };
+        let mut fallback = 0;
+        while fallback <= MAX_BACKTRACKS + 1 {
             let mut q_try = frame.q;
             for i in 0..N {
                 q_try[i] += dq[i];
@@ -444,7 +457,25 @@ impl<const M: usize, const N: usize> Controller<M, N> {
                 return (q_try, rep);
             }
             report.flags |= StatusFlags::BACKTRACKED;
-            dq = if attempt == 0 { dq1 } else { dq * 0.5 };
+            if replans > 0 {
+                replans -= 1;
+                let after = report.objective_after;
+                secant_update(&mut jac, &mut clear, &dq, obj0, &after, |k| {
+                    frame.clearance(k, &self.lambda.work)
+                });
+                // The plan's flags stay those of the first plan.
+                let mut scratch = SolverReport::default();
+                let (q2, d1) = self.qp_step(frame, &jac, &clear, obj0, &mut scratch);
+                if scratch.flags & StatusFlags::QP_FAILED == 0 {
+                    for i in 0..N {
+                        dq[i] = q2[i] - frame.q[i];
+                    }
+                    dq1 = d1;
+                    continue;
+                }
+            }
+            dq = if fallback == 0 { dq1 } else { dq * 0.5 };
+            fallback += 1;
         }
         let m = frame.rows();
         self.lambda.work[..m].copy_from_slice(&self.lambda.base[..m]);
@@ -611,4 +642,40 @@ fn smallest_eigenvalue(a: &Matrix4<f64>) -> f64 {
     }
     let eig = nalgebra::SymmetricEigen::new(*a);
     eig.eigenvalues.iter().fold(f64::INFINITY, |m, &x| m.min(x))
+}
+
+/// The rank-one secant (Broyden) correction of the tip rows of `jac` and of the clearance
+/// gradients along a rejected step `dq`, from what the constraint solve at `q + dq` gave (`after`
+/// the objective there, `clearance_after(k)` the clearances): afterwards `J dq` is the tip's
+/// actual change along `dq`, and `J` is unchanged on every direction orthogonal to `dq`. The
+/// angular row and the rotation-vector derivatives are kept.
+pub(super) fn secant_update<const N: usize>(
+    jac: &mut Jacobian<N>,
+    clear: &mut Clearances<N>,
+    dq: &SVector<f64, N>,
+    obj0: &Objective,
+    after: &[f64; 4],
+    clearance_after: impl Fn(usize) -> f64,
+) {
+    let n2 = dq.norm_squared();
+    if !(n2 > 0.0) || !after.iter().all(|x| x.is_finite()) {
+        return;
+    }
+    let jdq = *jac * dq;
+    for r in 0..3 {
+        let residual = (after[r] - obj0.t[r] - jdq[r]) / n2;
+        for i in 0..N {
+            jac[(r, i)] += residual * dq[i];
+        }
+    }
+    for k in 0..clear.count {
+        let g = &mut clear.gradient[k];
+        let predicted: f64 = (0..N).map(|i| g[i] * dq[i]).sum();
+        let residual = (clearance_after(k) - clear.value[k] - predicted) / n2;
+        if residual.is_finite() {
+            for i in 0..N {
+                g[i] += residual * dq[i];
+            }
+        }
+    }
 }

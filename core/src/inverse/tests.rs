@@ -349,3 +349,95 @@ fn aim_ahead_points_the_heading_back_towards_the_path() {
     let theta = crate::math::angle_between(&aim, &t);
     assert!((theta - (0.2f64).atan()).abs() < 1e-12, "{theta}");
 }
+
+/// `secant_update` (the model of `InverseParams::replan_rejected`): afterwards the tip rows of
+/// `J` and the clearance gradients reproduce the change the solve found along the rejected step
+/// exactly, and are unchanged on every direction orthogonal to it; the angular row is kept.
+#[test]
+fn secant_update_matches_the_rejected_step_and_keeps_the_other_directions() {
+    use super::objective::Objective;
+    use super::step::{Clearances, Jacobian, secant_update};
+    use nalgebra::{SMatrix, SVector};
+    let jac0 = Jacobian::<6>::from_fn(|r, i| ((r * 7 + i * 3) % 11) as f64 - 5.0);
+    let mut clear0 = Clearances::<6> {
+        count: 2,
+        value: [0.0; crate::payload::NCLEAR],
+        gradient: [[0.0; 6]; crate::payload::NCLEAR],
+        phi1: SMatrix::zeros(),
+        phi2: SMatrix::zeros(),
+    };
+    clear0.value[..2].copy_from_slice(&[1.5, 0.7]);
+    clear0.gradient[0] = [1.0, -2.0, 0.5, 0.0, 0.3, 0.1];
+    clear0.gradient[1] = [0.0, 1.0, 1.0, -1.0, 0.0, 2.0];
+    let obj0 = Objective {
+        t: [0.4, -1.2, 2.0, 0.3],
+        ..Objective::default()
+    };
+    let dq = SVector::<f64, 6>::from([1e-3, -2e-3, 5e-4, 0.0, 1e-3, -1e-3]);
+    // What the solve at q + dq found: not what J predicted.
+    let after = [0.41, -1.25, 1.93, 9.9];
+    let clear_after = [1.49, 0.72];
+    let (mut jac, mut clear) = (jac0, clear0);
+    secant_update(&mut jac, &mut clear, &dq, &obj0, &after, |k| clear_after[k]);
+    let jdq = jac * dq;
+    for r in 0..3 {
+        assert!((jdq[r] - (after[r] - obj0.t[r])).abs() < 1e-15, "row {r}");
+    }
+    assert_eq!(jac.row(3), jac0.row(3), "the angular row is kept");
+    for k in 0..2 {
+        let g = SVector::<f64, 6>::from(clear.gradient[k]);
+        assert!((g.dot(&dq) - (clear_after[k] - clear0.value[k])).abs() < 1e-15);
+    }
+    // A direction orthogonal to dq sees the old model.
+    let v = SVector::<f64, 6>::from([2.0, 1.0, 0.0, 3.0, 0.0, 0.0]);
+    assert!(v.dot(&dq).abs() < 1e-18);
+    assert!((jac * v - jac0 * v).norm() < 1e-12);
+    let (g, g0) = (
+        SVector::<f64, 6>::from(clear.gradient[0]),
+        SVector::<f64, 6>::from(clear0.gradient[0]),
+    );
+    assert!((g.dot(&v) - g0.dot(&v)).abs() < 1e-12);
+    // A zero step changes nothing.
+    let (mut j2, mut c2) = (jac0, clear0);
+    secant_update(&mut j2, &mut c2, &SVector::zeros(), &obj0, &after, |k| {
+        clear_after[k]
+    });
+    assert_eq!(j2, jac0);
+}
+
+/// With `InverseParams::replan_rejected` the candidates a step tries include the re-planned
+/// ones, and each is still confirmed by its solve: on the random inserted frames of
+/// `qp_step_never_leaves_the_tip_farther_than_it_found_it`, the tip never ends farther than it
+/// started, and some steps differ from the default's (the option does something).
+#[test]
+fn replanned_steps_are_confirmed_too() {
+    let chain = DhChain::rv1a();
+    let q = [0.1, 0.3, 2.0, 0.0, 0.5, 0.0];
+    let mut frame = ComplianceFrame::<48>::new_boxed();
+    let mut cmd = Command::<48>::new_boxed();
+    let replan = InverseParams {
+        replan_rejected: true,
+        ..InverseParams::default()
+    };
+    let mut differ = 0;
+    for seed in 0..300 {
+        crate::synthetic::random_frame(&mut frame, &chain, &q, 30, seed, true);
+        frame.dt = 1.0;
+        let mut ctrl = Controller::<48>::new_boxed(chain, replan);
+        let rep = ctrl.step(&frame, &mut cmd).expect("valid frame");
+        let tip = |t: &[f64; 4]| (t[0] * t[0] + t[1] * t[1] + t[2] * t[2]).sqrt();
+        let (before, after) = (tip(&rep.objective), tip(&rep.objective_after));
+        assert!(
+            after <= before * (1.0 + 1e-12),
+            "seed {seed}: tip error {before} → {after} mm (flags {:#x})",
+            rep.flags
+        );
+        let mut plain = Controller::<48>::new_boxed(chain, InverseParams::default());
+        let rep0 = plain.step(&frame, &mut cmd).expect("valid frame");
+        if rep0.delta_q != rep.delta_q {
+            differ += 1;
+        }
+    }
+    std::println!("{differ} of 300 steps re-planned differently");
+    assert!(differ > 0, "no frame exercised the re-plan");
+}

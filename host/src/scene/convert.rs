@@ -212,6 +212,7 @@ impl Scene {
             qp_angle_weight: v.qp_angle_weight,
             qp_heading: v.qp_heading,
             aim_ahead: v.aim_ahead,
+            replan_rejected: v.replan_rejected,
             limit_avoidance: v.limit_avoidance,
             jacobian: match v.jacobian {
                 super::JacobianSpec::Solve => JacobianMode::Solve,

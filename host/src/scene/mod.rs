@@ -418,6 +418,10 @@ pub struct InverseSpec {
     /// Look-ahead of the tip's heading once inserted [mm] (0: the path's tangent alone).
     #[serde(default = "default_aim_ahead")]
     pub aim_ahead: f64,
+    /// Re-plan a `"qp"` step that its confirming solve rejected, with the Jacobian corrected by
+    /// the secant along the rejected step (default false).
+    #[serde(default = "default_replan_rejected")]
+    pub replan_rejected: bool,
     /// Gain of the `"qp"` update's third stage for arms of more than 6 joints: each joint is
     /// moved towards the middle of its range in the null space of the task (0: off; no effect
     /// on 6-joint arms) [-].
@@ -462,6 +466,7 @@ impl Default for InverseSpec {
             qp_angle_weight: default_qp_angle_weight(),
             qp_heading: default_qp_heading(),
             aim_ahead: default_aim_ahead(),
+            replan_rejected: default_replan_rejected(),
             limit_avoidance: default_limit_avoidance(),
         }
     }
