@@ -70,7 +70,7 @@ pub use needle::{Beams, NeedleModel, NeedleParams};
 pub use system::{PcgParams, PcgStats};
 
 use crate::fem::FemError;
-use crate::linalg::SymmetricMatrix;
+use crate::linalg::{PcgOutcome, SymmetricMatrix};
 use background::LagGuard;
 use nalgebra::{Matrix3, Vector3};
 use system::{ReducedSystem, SystemLayout};
@@ -131,6 +131,7 @@ struct ModelLayout<'a> {
     dof_coords: Option<&'a [[f64; 3]]>,
     background: bool,
     pcg: Option<PcgParams>,
+    refine: Option<PcgParams>,
 }
 
 impl<E: Elements> FeModel<E> {
@@ -160,6 +161,7 @@ impl<E: Elements> FeModel<E> {
             dof_coords: layout.dof_coords,
             background: layout.background,
             pcg: layout.pcg,
+            refine: layout.refine,
         })?;
         // CG solves the current matrix: no rotation guard on the factor's age.
         let lag = (layout.background && layout.pcg.is_none())
@@ -247,7 +249,8 @@ impl<E: Elements> FeModel<E> {
     /// Preconditioned-CG mode: its counts (iterations, fallbacks, the last step's outcome);
     /// `None` with the direct solve.
     pub fn pcg_stats(&self) -> Option<PcgStats> {
-        self.sys.pcg.as_ref().map(|p| p.stats)
+        (self.sys.pcg.as_ref().map(|p| p.stats))
+            .or_else(|| self.sys.refine.as_ref().map(|r| r.stats))
     }
 
     /// Background mode: the largest rotation of an element between the matrix of the factor the
@@ -336,8 +339,21 @@ impl<E: Elements> FeModel<E> {
         if let Some(g) = self.lag.as_mut() {
             g.record(event, self.elements.rotations());
         }
+        self.sys.stage_refine(|v| elements.assemble(slots, v));
         self.sys.solve_global(&mut self.dx)?;
         Ok(&self.dx)
+    }
+
+    /// Refined-step mode (`GelParams::refine`): replaces the step `dx` made with the factor in
+    /// use, `F⁻¹ g` (free motion plus corrective motion, `g` the step's net force), by the step
+    /// with the matrix of the last free motion, `A⁻¹ g`, solved by CG preconditioned by `F`
+    /// from `dx`. Returns the CG outcome; `None` in the other modes (`dx` unchanged).
+    ///
+    /// # Errors
+    /// Wrong length or non-finite `dx`, or no factorisation yet.
+    pub fn refine_step(&mut self, dx: &mut [f64]) -> Result<Option<PcgOutcome>, FemError> {
+        check_vec("step", dx, self.dof_count())?;
+        self.sys.refine_step(dx)
     }
 
     /// The last `Δx_free`.
