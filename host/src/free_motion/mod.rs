@@ -49,6 +49,13 @@
 //!   as the approximation of `K⁻¹` (consistent with each other, as before); no rotation guard
 //!   is needed, since CG solves the current matrix. Which factor a step uses depends on the
 //!   worker's timing: runs are not bit-for-bit repeatable in this mode.
+//!   The free motion with `A` and the correction with `F` do not cancel: every step carries
+//!   `(F⁻¹ − A⁻¹) Hᵀλ`, a share of the whole constraint force (see `docs/architecture.md`).
+//! - **Refined step** (`GelParams::refine`): the direct mode's step, free motion, compliance and
+//!   correction all with the factor in use `F`, then the gel's whole step `F⁻¹ g` (`g` the net
+//!   force, free plus constraint) replaced by `A⁻¹ g` with the step's own matrix `A`, by CG from
+//!   it preconditioned by `F` ([`FeModel::refine_step`], called by the corrective motion). The
+//!   stale factor then errs only on the net force, as in the pipeline.
 //! - All buffers are allocated at construction.
 //!
 //! Files: `system.rs` (the reduced system and its solves), `background.rs` (the factorisation
