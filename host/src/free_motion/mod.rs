@@ -359,6 +359,9 @@ impl<E: Elements> FeModel<E> {
     /// # Errors
     /// Wrong length or non-finite `dx`, or no factorisation yet.
     pub fn refine_step(&mut self, dx: &mut [f64]) -> Result<Option<PcgOutcome>, FemError> {
+        if self.sys.refine.is_none() {
+            return Ok(None);
+        }
         check_vec("step", dx, self.dof_count())?;
         self.sys.refine_step(dx)
     }
