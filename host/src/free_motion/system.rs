@@ -77,9 +77,6 @@ pub(super) struct PcgState {
     pub stats: PcgStats,
 }
 
-/// How a reduced system is built: which global dofs are fixed, the element entries, the
-/// regularisation per global dof, the refactorisation period, the dof coordinates for a
-/// nested-dissection ordering, and whether to factorise in the background.
 /// Refined-step mode ([`ReducedSystem::refine_step`]): the step's own matrix `A`, written at
 /// every free motion, the CG scratch and the counts.
 #[derive(Debug)]
@@ -92,6 +89,9 @@ pub(super) struct RefineState {
     pub stats: PcgStats,
 }
 
+/// How a reduced system is built: which global dofs are fixed, the element entries, the
+/// regularisation per global dof, the refactorisation period, the dof coordinates for a
+/// nested-dissection ordering, and whether to factorise in the background.
 pub(super) struct SystemLayout<'a, I: Iterator<Item = (usize, usize)>, F: Fn() -> I> {
     pub fixed: &'a [bool],
     pub entries: F,
