@@ -410,6 +410,38 @@ pub fn pcg_solve(
     tolerance: f64,
     max_iterations: usize,
 ) -> Result<PcgOutcome, LinalgError> {
+    pcg_iterate(a, pre, b, x, work, tolerance, max_iterations, false)
+}
+
+/// [`pcg_solve`] from the initial guess `x` (on entry) instead of zero: one more product with
+/// `A` for the initial residual `b − A x`. A guess that already meets the tolerance returns at
+/// once, with 0 iterations and `x` unchanged.
+///
+/// # Errors
+/// As [`pcg_solve`].
+pub fn pcg_solve_from(
+    a: &SymmetricMatrix,
+    pre: &mut Cholesky,
+    b: &[f64],
+    x: &mut [f64],
+    work: &mut PcgWork,
+    tolerance: f64,
+    max_iterations: usize,
+) -> Result<PcgOutcome, LinalgError> {
+    pcg_iterate(a, pre, b, x, work, tolerance, max_iterations, true)
+}
+
+#[allow(clippy::too_many_arguments)]
+fn pcg_iterate(
+    a: &SymmetricMatrix,
+    pre: &mut Cholesky,
+    b: &[f64],
+    x: &mut [f64],
+    work: &mut PcgWork,
+    tolerance: f64,
+    max_iterations: usize,
+    warm: bool,
+) -> Result<PcgOutcome, LinalgError> {
     let n = a.pattern.dim();
     for len in [b.len(), x.len(), pre.dim(), work.r.len()] {
         if len != n {
@@ -419,9 +451,9 @@ pub fn pcg_solve(
             });
         }
     }
-    x.iter_mut().for_each(|v| *v = 0.0);
     let b_norm = dot(b, b).sqrt();
     if b_norm == 0.0 {
+        x.iter_mut().for_each(|v| *v = 0.0);
         return Ok(PcgOutcome {
             iterations: 0,
             relative_residual: 0.0,
@@ -429,16 +461,32 @@ pub fn pcg_solve(
         });
     }
     let PcgWork { r, z, p, q } = work;
-    r.copy_from_slice(b);
-    z.copy_from_slice(b);
-    pre.solve_in_place(z)?;
-    p.copy_from_slice(z);
-    let mut rz = dot(r, z);
     let mut outcome = PcgOutcome {
         iterations: 0,
         relative_residual: 1.0,
         converged: false,
     };
+    if warm {
+        a.mul_vec(x, q)?;
+        for ((ri, bi), qi) in r.iter_mut().zip(b).zip(q.iter()) {
+            *ri = bi - qi;
+        }
+        outcome.relative_residual = dot(r, r).sqrt() / b_norm;
+        if !outcome.relative_residual.is_finite() {
+            return Ok(outcome);
+        }
+        if outcome.relative_residual <= tolerance {
+            outcome.converged = true;
+            return Ok(outcome);
+        }
+    } else {
+        x.iter_mut().for_each(|v| *v = 0.0);
+        r.copy_from_slice(b);
+    }
+    z.copy_from_slice(r);
+    pre.solve_in_place(z)?;
+    p.copy_from_slice(z);
+    let mut rz = dot(r, z);
     while outcome.iterations < max_iterations {
         a.mul_vec(p, q)?;
         let pq = dot(p, q);

@@ -280,6 +280,10 @@ pub fn gel_params(scene: &Scene) -> GelParams {
             tolerance: scene.solver.pcg_tolerance,
             max_iterations: scene.solver.pcg_max_iterations as usize,
         }),
+        refine: (scene.solver.gel_solve == GelSolveSpec::Refine).then_some(PcgParams {
+            tolerance: scene.solver.pcg_tolerance,
+            max_iterations: scene.solver.pcg_max_iterations as usize,
+        }),
     }
 }
 

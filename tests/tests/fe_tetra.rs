@@ -9,7 +9,7 @@ use needle_host::fem::tetra::{
     rotation_from_deformation_svd,
 };
 use needle_host::free_motion::{GelModel, GelParams, LAG_ROTATION_LIMIT, PcgParams};
-use needle_host::linalg::{Cholesky, PcgWork, pcg_solve};
+use needle_host::linalg::{Cholesky, PcgWork, pcg_solve, pcg_solve_from};
 use needle_host::mesh::{BoxDivisions, TetMesh, box_mesh, box_mesh_with_divisions};
 
 const GEL: Elasticity = Elasticity {
@@ -593,6 +593,106 @@ fn pcg_with_a_stale_factor_converges_to_the_direct_solve_on_a_rotated_mesh() {
     // A cap it cannot meet: not converged, and said so.
     let capped = pcg_solve(&current, &mut stale, &b, &mut x, &mut work, 1e-12, 1).unwrap();
     assert!(!capped.converged && capped.iterations == 1);
+    // From the stale factor's solution: to the same tolerance in fewer iterations than from
+    // zero; from the exact solution, no iteration at all.
+    let mut warm = stale_only.clone();
+    let from = pcg_solve_from(&current, &mut stale, &b, &mut warm, &mut work, 1e-12, 200).unwrap();
+    println!(
+        "from the stale solve: {} iterations, error {:.1e}",
+        from.iterations,
+        rel(&warm)
+    );
+    assert!(from.converged && from.iterations >= 1 && from.iterations <= out.iterations);
+    assert!(rel(&warm) < 1e-9, "warm-started PCG error {:e}", rel(&warm));
+    let mut exact_guess = direct.clone();
+    let none = pcg_solve_from(
+        &current,
+        &mut stale,
+        &b,
+        &mut exact_guess,
+        &mut work,
+        1e-10,
+        200,
+    )
+    .unwrap();
+    assert!(none.converged && none.iterations == 0);
+    assert_eq!(exact_guess, direct);
+}
+
+/// The refined step (`GelParams::refine`, `solver.gel_solve = "refine"`): the step made with a
+/// stale factor `F`, free motion `F⁻¹ (f_ext − f_int)` plus a correction `F⁻¹ h` under a
+/// constraint-like load `h` (the whole force that holds the gel, as the constraints' λ are),
+/// refined by CG is the synchronous Newton step `A⁻¹ (f_ext − f_int + h)` at the same positions,
+/// to 1e-8 relative at a CG tolerance of 1e-11 — while the unrefined step is off by more than
+/// 1e-4 (so the factor is stale and the refinement does something). Pipelines of 3 steps, with
+/// and without the background thread.
+#[test]
+fn refined_step_matches_the_synchronous_newton_step_with_its_correction() {
+    for background in [true, false] {
+        let (mesh, bottom, params) = background_box();
+        let refine_params = GelParams {
+            background_factorization: background,
+            refactor_every: 3,
+            refine: Some(PcgParams {
+                tolerance: 1e-11,
+                max_iterations: 50,
+            }),
+            ..params.clone()
+        };
+        let mut model = GelModel::try_new(mesh.clone(), &bottom, &refine_params).unwrap();
+        let mut sync = GelModel::try_new(mesh, &bottom, &params).unwrap();
+        let f = gravity_like_load(&model, -4e-3);
+        // A lateral pull on the top nodes at the far end, growing over the steps.
+        let top: Vec<usize> = (0..model.node_count())
+            .filter(|&i| {
+                let p = model.positions()[i];
+                p.z > 19.999 && p.x > 34.0
+            })
+            .collect();
+        assert!(!top.is_empty());
+        let (mut worst, mut worst_unrefined) = (0.0f64, 0.0f64);
+        for step in 0..40 {
+            let mut h = vec![0.0; model.dof_count()];
+            for &i in &top {
+                h[3 * i + 1] = 2e-3 * (step as f64 + 1.0) / 40.0;
+            }
+            let x = model.positions().to_vec();
+            let mut dx = model.free_motion(&f).unwrap().to_vec();
+            let mut correction = h.clone();
+            model.solve(&mut correction).unwrap();
+            for (d, c) in dx.iter_mut().zip(&correction) {
+                *d += c;
+            }
+            let unrefined = dx.clone();
+            let out = model.refine_step(&mut dx).unwrap().expect("refine mode");
+            assert!(out.converged);
+            sync.positions_mut().copy_from_slice(&x);
+            let load: Vec<f64> = f.iter().zip(&h).map(|(a, b)| a + b).collect();
+            let expected = sync.free_motion(&load).unwrap();
+            let scale = expected.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            let diff = |a: &[f64]| {
+                a.iter()
+                    .zip(expected)
+                    .map(|(p, q)| (p - q).abs())
+                    .fold(0.0, f64::max)
+                    / scale
+            };
+            worst = worst.max(diff(&dx));
+            worst_unrefined = worst_unrefined.max(diff(&unrefined));
+            model.apply_displacement(&dx).unwrap();
+        }
+        let stats = model.pcg_stats().unwrap();
+        println!(
+            "background {background}: refined step off by {worst:.2e}, unrefined by {worst_unrefined:.2e} (relative); {stats:?}"
+        );
+        assert!(
+            worst_unrefined > 1e-4,
+            "the factor's step is already exact: the test is void"
+        );
+        assert!(worst < 1e-8, "refined step off by {worst:e}");
+        assert_eq!(stats.fallbacks, 0);
+        assert!(stats.iterations as f64 / stats.steps as f64 > 1.0);
+    }
 }
 
 /// The preconditioned-CG free motion (factor refreshed every 3 steps in the background, or
@@ -656,6 +756,125 @@ fn pcg_free_motion_matches_the_synchronous_newton_step() {
         }
         same_equilibrium(&mut pcg, &f, &params);
     }
+}
+
+/// How a step combines the matrices, in [`dragged_node_force`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum StepMode {
+    /// A factorisation every step: the exact Newton step.
+    Exact,
+    /// A factor refreshed every 8 steps for free motion, compliance and correction.
+    Pipeline,
+    /// `solver.gel_solve = "pcg"`: the free motion on the step's own matrix (CG), compliance
+    /// and correction with the factor refreshed every 8 steps.
+    Mixed,
+    /// `solver.gel_solve = "refine"`: the pipeline's step refined to the step's own matrix.
+    Refine,
+}
+
+/// A top node of a clamped box held by a 3-row constraint (`W = P K⁻¹ Pᵀ`, `λ = W⁻¹ (target −
+/// x_free)`, correction `K⁻¹ Pᵀ λ`, as the host's step does), dragged 0.1 mm down and 0.05 mm
+/// sideways per step for 40 steps, then held for 40: the constraint force of every step [N].
+fn dragged_node_force(mode: StepMode) -> Vec<Vector3<f64>> {
+    let mesh = box_mesh_with_divisions(
+        Vector3::zeros(),
+        Vector3::new(40.0, 20.0, 20.0),
+        BoxDivisions {
+            nx: 8,
+            ny: 4,
+            nz: 4,
+        },
+    );
+    let bottom = mesh.nodes_on_plane(2, 0.0, 1e-9);
+    let (_, _, base) = background_box();
+    let cg = Some(PcgParams {
+        tolerance: 1e-12,
+        max_iterations: 200,
+    });
+    let params = match mode {
+        StepMode::Exact => base,
+        StepMode::Pipeline => GelParams {
+            refactor_every: 8,
+            ..base
+        },
+        StepMode::Mixed => GelParams {
+            refactor_every: 8,
+            pcg: cg,
+            ..base
+        },
+        StepMode::Refine => GelParams {
+            refactor_every: 8,
+            refine: cg,
+            ..base
+        },
+    };
+    let node = (mesh.nodes.iter())
+        .position(|p| (p - Vector3::new(20.0, 10.0, 20.0)).norm() < 1e-9)
+        .unwrap();
+    let mut m = GelModel::try_new(mesh, &bottom, &params).unwrap();
+    let (rest, d, n) = (
+        m.positions()[node],
+        m.node_dof(node).unwrap(),
+        m.dof_count(),
+    );
+    let mut forces = Vec::new();
+    for k in 0..80 {
+        let s = (k.min(40) + 1) as f64 * 0.1;
+        let target = rest + Vector3::new(0.0, 0.5 * s, -s);
+        let mut dx = m.free_motion_unloaded().unwrap().to_vec();
+        let free = m.positions()[node] + Vector3::new(dx[d], dx[d + 1], dx[d + 2]);
+        let mut cols = vec![0.0; 3 * n];
+        for c in 0..3 {
+            cols[c * n + d + c] = 1.0;
+        }
+        m.solve_columns(&mut cols, 3).unwrap();
+        let w = Matrix3::from_fn(|r, c| cols[c * n + d + r]);
+        let lambda = w.try_inverse().unwrap() * (target - free);
+        for c in 0..3 {
+            for (x, u) in dx.iter_mut().zip(&cols[c * n..(c + 1) * n]) {
+                *x += lambda[c] * u;
+            }
+        }
+        m.refine_step(&mut dx).unwrap();
+        m.apply_displacement(&dx).unwrap();
+        forces.push(lambda);
+    }
+    forces
+}
+
+/// Why the PCG option moves results: the constraint forces are totals, not increments (the
+/// free motion springs the gel back by the whole holding force, the correction pushes it
+/// again), so its mixed step — free motion with the step's matrix `A`, compliance and correction
+/// with the stale factor `F` — carries `(A⁻¹ − F⁻¹) Hᵀλ`, an error proportional to the whole
+/// force: the equilibrium is not its fixed point (a held node's force stays off the exact one),
+/// and while dragged its force is further off than the pipeline's. With one matrix for the whole
+/// step (the pipeline) or the whole step refined to `A` (`"refine"`), the stale factor only
+/// scales the step's net force: held, both reach the exact force to round-off.
+#[test]
+fn a_mixed_step_biases_the_constraint_force_and_one_matrix_per_step_does_not() {
+    let exact = dragged_node_force(StepMode::Exact);
+    let off = |mode| {
+        let f = dragged_node_force(mode);
+        let rel = |k: usize| (f[k] - exact[k]).norm() / exact[k].norm();
+        let dragged = (0..41).map(rel).fold(0.0, f64::max);
+        let held = (50..80).map(rel).fold(0.0, f64::max);
+        println!(
+            "{mode:?}: force off the exact step's by {dragged:.2e} while dragged, {held:.2e} held (relative)"
+        );
+        (dragged, held)
+    };
+    let (pipeline, mixed, refine) = (
+        off(StepMode::Pipeline),
+        off(StepMode::Mixed),
+        off(StepMode::Refine),
+    );
+    assert!(
+        pipeline.0 > 1e-3,
+        "the factor is not stale: the test is void"
+    );
+    assert!(pipeline.1 < 1e-8 && refine.1 < 1e-8);
+    assert!(mixed.1 > 1e-5, "the mixed step reached the equilibrium");
+    assert!(mixed.0 > 2.0 * pipeline.0 && refine.0 <= pipeline.0);
 }
 
 /// A 40 × 20 × 20 mm box of 6 × 3 × 3 cells with its bottom nodes (to clamp).

@@ -384,7 +384,7 @@ fn print_text(s: &RunSummary) {
     }
     if s.pcg_iterations_max > 0 {
         println!(
-            "gel CG iterations per step: mean {:.2}, max {} ({} steps did not converge and factorised at once)",
+            "gel CG iterations per step: mean {:.2}, max {} ({} steps did not converge: factorised at once with \"pcg\", the factor's step kept with \"refine\")",
             s.pcg_iterations_mean, s.pcg_iterations_max, s.pcg_fallbacks
         );
     }

@@ -42,6 +42,11 @@ pub struct GelParams {
     /// `background_factorization`) as preconditioner; `None`: the direct solve with the factor
     /// (see the module docs).
     pub pcg: Option<PcgParams>,
+    /// Refined step (`solver.gel_solve = "refine"`): the free motion, the compliance and the
+    /// corrective motion use the factor in use `F` (as with `pcg: None`), then the whole step
+    /// `F⁻¹ g` is replaced by `A⁻¹ g`, `A` the step's own matrix, by CG from it
+    /// ([`FeModel::refine_step`]). Ignored with `pcg`.
+    pub refine: Option<PcgParams>,
 }
 
 impl Default for GelParams {
@@ -58,6 +63,7 @@ impl Default for GelParams {
             refactor_every: 1,
             background_factorization: false,
             pcg: None,
+            refine: None,
         }
     }
 }
@@ -189,6 +195,7 @@ impl FeModel<Tets> {
                 dof_coords: nd,
                 background: params.background_factorization,
                 pcg: params.pcg,
+                refine: params.refine.filter(|_| params.pcg.is_none()),
             },
         )
     }

@@ -49,6 +49,13 @@
 //!   as the approximation of `K⁻¹` (consistent with each other, as before); no rotation guard
 //!   is needed, since CG solves the current matrix. Which factor a step uses depends on the
 //!   worker's timing: runs are not bit-for-bit repeatable in this mode.
+//!   The free motion with `A` and the correction with `F` do not cancel: every step carries
+//!   `(F⁻¹ − A⁻¹) Hᵀλ`, a share of the whole constraint force (see `docs/architecture.md`).
+//! - **Refined step** (`GelParams::refine`): the direct mode's step, free motion, compliance and
+//!   correction all with the factor in use `F`, then the gel's whole step `F⁻¹ g` (`g` the net
+//!   force, free plus constraint) replaced by `A⁻¹ g` with the step's own matrix `A`, by CG from
+//!   it preconditioned by `F` ([`FeModel::refine_step`], called by the corrective motion). The
+//!   stale factor then errs only on the net force, as in the pipeline.
 //! - All buffers are allocated at construction.
 //!
 //! Files: `system.rs` (the reduced system and its solves), `background.rs` (the factorisation
@@ -70,7 +77,7 @@ pub use needle::{Beams, NeedleModel, NeedleParams};
 pub use system::{PcgParams, PcgStats};
 
 use crate::fem::FemError;
-use crate::linalg::SymmetricMatrix;
+use crate::linalg::{PcgOutcome, SymmetricMatrix};
 use background::LagGuard;
 use nalgebra::{Matrix3, Vector3};
 use system::{ReducedSystem, SystemLayout};
@@ -131,6 +138,7 @@ struct ModelLayout<'a> {
     dof_coords: Option<&'a [[f64; 3]]>,
     background: bool,
     pcg: Option<PcgParams>,
+    refine: Option<PcgParams>,
 }
 
 impl<E: Elements> FeModel<E> {
@@ -160,6 +168,7 @@ impl<E: Elements> FeModel<E> {
             dof_coords: layout.dof_coords,
             background: layout.background,
             pcg: layout.pcg,
+            refine: layout.refine,
         })?;
         // CG solves the current matrix: no rotation guard on the factor's age.
         let lag = (layout.background && layout.pcg.is_none())
@@ -247,7 +256,8 @@ impl<E: Elements> FeModel<E> {
     /// Preconditioned-CG mode: its counts (iterations, fallbacks, the last step's outcome);
     /// `None` with the direct solve.
     pub fn pcg_stats(&self) -> Option<PcgStats> {
-        self.sys.pcg.as_ref().map(|p| p.stats)
+        (self.sys.pcg.as_ref().map(|p| p.stats))
+            .or_else(|| self.sys.refine.as_ref().map(|r| r.stats))
     }
 
     /// Background mode: the largest rotation of an element between the matrix of the factor the
@@ -336,8 +346,24 @@ impl<E: Elements> FeModel<E> {
         if let Some(g) = self.lag.as_mut() {
             g.record(event, self.elements.rotations());
         }
+        self.sys.stage_refine(|v| elements.assemble(slots, v));
         self.sys.solve_global(&mut self.dx)?;
         Ok(&self.dx)
+    }
+
+    /// Refined-step mode (`GelParams::refine`): replaces the step `dx` made with the factor in
+    /// use, `F⁻¹ g` (free motion plus corrective motion, `g` the step's net force), by the step
+    /// with the matrix of the last free motion, `A⁻¹ g`, solved by CG preconditioned by `F`
+    /// from `dx`. Returns the CG outcome; `None` in the other modes (`dx` unchanged).
+    ///
+    /// # Errors
+    /// Wrong length or non-finite `dx`, or no factorisation yet.
+    pub fn refine_step(&mut self, dx: &mut [f64]) -> Result<Option<PcgOutcome>, FemError> {
+        if self.sys.refine.is_none() {
+            return Ok(None);
+        }
+        check_vec("step", dx, self.dof_count())?;
+        self.sys.refine_step(dx)
     }
 
     /// The last `Δx_free`.

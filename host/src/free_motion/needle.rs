@@ -152,6 +152,7 @@ impl FeModel<Beams> {
                 dof_coords: None,
                 background: false,
                 pcg: None,
+                refine: None,
             },
         )
     }

@@ -6,7 +6,7 @@ use super::background::{Adopted, Background, FactorEvent, Job};
 use crate::fem::FemError;
 use crate::linalg::{
     Cholesky, PcgOutcome, PcgWork, SymmetricMatrix, SymmetricPattern, nested_dissection_order,
-    pcg_solve,
+    pcg_solve, pcg_solve_from,
 };
 
 /// Marks a fixed (eliminated) dof in the global → reduced map.
@@ -35,6 +35,8 @@ pub(super) struct ReducedSystem {
     /// Preconditioned-CG mode: each step solves its own matrix with the factor in use as
     /// preconditioner.
     pub pcg: Option<PcgState>,
+    /// Refined-step mode: the step's own matrix and the CG scratch.
+    pub refine: Option<RefineState>,
 }
 
 /// Settings of the preconditioned-CG free motion (see the module docs of
@@ -75,6 +77,18 @@ pub(super) struct PcgState {
     pub stats: PcgStats,
 }
 
+/// Refined-step mode ([`ReducedSystem::refine_step`]): the step's own matrix `A`, written at
+/// every free motion, the CG scratch and the counts.
+#[derive(Debug)]
+pub(super) struct RefineState {
+    params: PcgParams,
+    current: SymmetricMatrix,
+    work: PcgWork,
+    b: Vec<f64>,
+    x: Vec<f64>,
+    pub stats: PcgStats,
+}
+
 /// How a reduced system is built: which global dofs are fixed, the element entries, the
 /// regularisation per global dof, the refactorisation period, the dof coordinates for a
 /// nested-dissection ordering, and whether to factorise in the background.
@@ -86,6 +100,7 @@ pub(super) struct SystemLayout<'a, I: Iterator<Item = (usize, usize)>, F: Fn() -
     pub dof_coords: Option<&'a [[f64; 3]]>,
     pub background: bool,
     pub pcg: Option<PcgParams>,
+    pub refine: Option<PcgParams>,
 }
 
 impl ReducedSystem {
@@ -143,6 +158,14 @@ impl ReducedSystem {
             rhs: vec![0.0; n],
             stats: PcgStats::default(),
         });
+        let refine = layout.refine.map(|params| RefineState {
+            params,
+            current: SymmetricMatrix::zeros(pattern.clone()),
+            work: PcgWork::new(n),
+            b: vec![0.0; n],
+            x: vec![0.0; n],
+            stats: PcgStats::default(),
+        });
         Ok((
             Self {
                 dof_map,
@@ -158,6 +181,7 @@ impl ReducedSystem {
                 refactor_requested: false,
                 background,
                 pcg,
+                refine,
             },
             slots,
         ))
@@ -475,6 +499,74 @@ impl ReducedSystem {
                 self.factorize_now()
             }
         }
+    }
+
+    /// Refined-step mode: writes this step's own matrix `A` (`write` fills the elements'
+    /// values); a no-op in the other modes.
+    pub fn stage_refine(&mut self, write: impl FnOnce(&mut [f64])) {
+        if let Some(rf) = self.refine.as_mut() {
+            Self::write_into(
+                &mut rf.current,
+                &self.diag_slots,
+                &self.regularization,
+                write,
+            );
+        }
+    }
+
+    /// Refined-step mode: `dx` (global dofs) is a step made with the factor in use `F`, free
+    /// motion and correction alike, `dx = F⁻¹ g` with `g = f_ext − f_int(x) + Hᵀλ` the net force
+    /// of the step. Replaces it by `A⁻¹ g`, the step with this step's own matrix `A` (written
+    /// by [`Self::stage_refine`]): `g = F dx` by a product with the factor's matrix, then CG on
+    /// `A` from `dx`, preconditioned by `F`, to `‖g − A dx‖ ≤ tolerance ‖g‖`. A step whose CG
+    /// does not converge within the cap keeps the factor's step (counted as a fallback).
+    /// Returns the CG outcome (`None` in the other modes: `dx` unchanged).
+    ///
+    /// # Errors
+    /// Wrong length, or no factorisation yet.
+    pub fn refine_step(&mut self, dx: &mut [f64]) -> Result<Option<PcgOutcome>, FemError> {
+        if dx.len() != self.dof_map.len() {
+            return Err(FemError::DimensionMismatch {
+                what: "step",
+                expected: self.dof_map.len(),
+                got: dx.len(),
+            });
+        }
+        let Self {
+            chol,
+            matrix,
+            refine,
+            free,
+            ..
+        } = self;
+        let Some(rf) = refine.as_mut() else {
+            return Ok(None);
+        };
+        for (k, &g) in free.iter().enumerate() {
+            rf.x[k] = dx[g];
+        }
+        matrix.mul_vec(&rf.x, &mut rf.b)?;
+        let out = pcg_solve_from(
+            &rf.current,
+            chol,
+            &rf.b,
+            &mut rf.x,
+            &mut rf.work,
+            rf.params.tolerance,
+            rf.params.max_iterations,
+        )?;
+        rf.stats.last = out;
+        if out.converged {
+            rf.stats.steps += 1;
+            rf.stats.iterations += out.iterations as u64;
+            rf.stats.max_iterations = rf.stats.max_iterations.max(out.iterations);
+            for (k, &g) in free.iter().enumerate() {
+                dx[g] = rf.x[k];
+            }
+        } else {
+            rf.stats.fallbacks += 1;
+        }
+        Ok(Some(out))
     }
 
     /// [`Self::solve_global`] after checking the length (one value per global dof).

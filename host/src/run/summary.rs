@@ -152,13 +152,14 @@ pub struct RunSummary {
     /// elements rotated more than `LAG_ROTATION_LIMIT` since the previous one; with
     /// `solver.gel_solve = "pcg"`, steps whose CG did not converge).
     pub immediate_factorizations: u64,
-    /// `solver.gel_solve = "pcg"`: CG iterations per step solved by CG, mean (0 with the
-    /// direct solve).
+    /// `solver.gel_solve = "pcg"` or `"refine"`: CG iterations per step solved (or refined)
+    /// by CG, mean (0 with the direct solve).
     pub pcg_iterations_mean: f64,
-    /// `solver.gel_solve = "pcg"`: most CG iterations of a step.
+    /// `solver.gel_solve = "pcg"` or `"refine"`: most CG iterations of a step.
     pub pcg_iterations_max: usize,
     /// `solver.gel_solve = "pcg"`: steps whose CG reached its cap (or broke down) and
-    /// factorised at once.
+    /// factorised at once; `"refine"`: steps whose refinement reached its cap and kept the
+    /// factor's step.
     pub pcg_fallbacks: u64,
     /// Times the host held the insertion because no command arrived within the transport's
     /// deadline.

@@ -524,6 +524,10 @@ pub enum GelSolveSpec {
     Direct,
     /// Preconditioned conjugate gradients with the factor in use as preconditioner.
     Pcg,
+    /// The direct solve's step (free motion, compliance and correction with the factor in
+    /// use, refreshed as `refactor_every` and `background_factorization` say), then refined to
+    /// the step's own matrix by CG from it, preconditioned by the factor.
+    Refine,
 }
 
 impl SolverSpec {
@@ -533,8 +537,8 @@ impl SolverSpec {
         self.refactor_every
             .unwrap_or(match (self.gel_solve, self.background_factorization) {
                 (GelSolveSpec::Pcg, _) => PCG_REFACTOR_EVERY,
-                (GelSolveSpec::Direct, true) => 2,
-                (GelSolveSpec::Direct, false) => 1,
+                (GelSolveSpec::Direct | GelSolveSpec::Refine, true) => 2,
+                (GelSolveSpec::Direct | GelSolveSpec::Refine, false) => 1,
             })
     }
 }

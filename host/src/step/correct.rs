@@ -5,10 +5,13 @@
 //! ```
 //!
 //! with the Cartesian columns `U_b = K⁻¹ P_bᵀ` of each attachment `b` (the compliance stage
-//! computed them), its directions `D_b` and side `s_b` (+1 needle, −1 gel). No solve.
+//! computed them), its directions `D_b` and side `s_b` (+1 needle, −1 gel). No solve, except
+//! with `solver.gel_solve = "refine"`: the gel's whole step, free plus corrective motion, made
+//! with the factor in use, is then refined to the step's own matrix by CG
+//! ([`crate::free_motion::FeModel::refine_step`]).
 
 use crate::constraints::{ConstraintSet, GroupRole, Model};
-use crate::error::{NonFiniteAt, SimError};
+use crate::error::{Body, NonFiniteAt, SimError};
 use crate::world::World;
 use nalgebra::Vector3;
 
@@ -54,6 +57,14 @@ pub fn apply<const N: usize>(
     gel_dx: &mut [f64],
 ) -> Result<(), SimError> {
     add_correction(set, lambda, needle_dx, gel_dx);
+    // Refined-step mode: the gel's step to its own matrix (a no-op otherwise; a non-finite
+    // step is left to the check below).
+    if gel_dx.iter().all(|v| v.is_finite()) {
+        world
+            .gel
+            .refine_step(gel_dx)
+            .map_err(SimError::in_free_motion(Body::Gel))?;
+    }
     // Finite (the command was checked) and of the models' own lengths: cannot fail.
     let _ = world.needle.apply_displacement(needle_dx);
     let _ = world.gel.apply_displacement(gel_dx);
