@@ -3,7 +3,7 @@
 //! tracking error stay within 0.05 mm of the synchronous run's at every step, while the factor
 //! is refreshed only every few steps.
 
-use needle_host::run::{RunOptions, run};
+use needle_host::run::{RunOptions, RunResult, run};
 use needle_host::scene::Scene;
 
 fn simple(overrides: &[(&str, &str)]) -> Scene {
@@ -17,9 +17,11 @@ fn simple(overrides: &[(&str, &str)]) -> Scene {
         .unwrap()
 }
 
-#[test]
-fn pcg_insertion_stays_within_0_05_mm_of_the_synchronous_newton_step() {
-    // 250 steps: 113 to the puncture, then 13 mm inside the gel.
+/// The simple insertion's first 250 steps (113 to the puncture, then 13 mm inside the gel)
+/// synchronously and with `solver.gel_solve = gel_solve` and a pipeline of 8 steps: both runs,
+/// the largest tip distance and the largest tracking-error difference of a step [mm], printed
+/// with the second run's CG and factorisation counts.
+fn against_synchronous(gel_solve: &str) -> (RunResult, RunResult, f64, f64) {
     let opts = RunOptions {
         steps: Some(250),
         ..RunOptions::default()
@@ -30,30 +32,37 @@ fn pcg_insertion_stays_within_0_05_mm_of_the_synchronous_newton_step() {
         |_| {},
     )
     .unwrap();
-    let pcg = run(
+    let other = run(
         &simple(&[
-            ("solver.gel_solve", "\"pcg\""),
+            ("solver.gel_solve", &format!("\"{gel_solve}\"")),
             ("solver.refactor_every", "8"),
         ]),
         &opts,
         |_| {},
     )
     .unwrap();
-    assert_eq!(sync.reports.len(), pcg.reports.len());
+    assert_eq!(sync.reports.len(), other.reports.len());
     let (mut tip, mut err) = (0.0f64, 0.0f64);
-    for (a, b) in sync.reports.iter().zip(&pcg.reports) {
+    for (a, b) in sync.reports.iter().zip(&other.reports) {
         tip = tip.max((a.tip - b.tip).norm());
         err = err.max((a.error - b.error).abs());
     }
-    let s = &pcg.summary;
+    let s = &other.summary;
     println!(
-        "largest tip difference {tip:.4} mm, error difference {err:.4} mm; CG iterations mean {:.2}, max {}, fallbacks {}; factorisations {} in the background, {} at once",
+        "{gel_solve}: largest tip difference {tip:.4} mm, error difference {err:.4} mm; CG iterations mean {:.2}, max {}, fallbacks {}; factorisations {} in the background, {} at once",
         s.pcg_iterations_mean,
         s.pcg_iterations_max,
         s.pcg_fallbacks,
         s.background_factorizations,
         s.immediate_factorizations
     );
+    (sync, other, tip, err)
+}
+
+#[test]
+fn pcg_insertion_stays_within_0_05_mm_of_the_synchronous_newton_step() {
+    let (sync, pcg, tip, err) = against_synchronous("pcg");
+    let s = &pcg.summary;
     assert!(tip > 0.0, "identical runs: the setting had no effect");
     // The accuracy bound of the speed issue is on the tracking error. The tips themselves may
     // part by more: the controller confirms or shortens each step by a discrete test, and two
@@ -81,40 +90,8 @@ fn pcg_insertion_stays_within_0_05_mm_of_the_synchronous_newton_step() {
 /// iterations (0.70 per step on average: none in the air).
 #[test]
 fn refined_insertion_stays_within_0_05_mm_of_the_synchronous_newton_step() {
-    let opts = RunOptions {
-        steps: Some(250),
-        ..RunOptions::default()
-    };
-    let sync = run(
-        &simple(&[("solver.background_factorization", "false")]),
-        &opts,
-        |_| {},
-    )
-    .unwrap();
-    let refined = run(
-        &simple(&[
-            ("solver.gel_solve", "\"refine\""),
-            ("solver.refactor_every", "8"),
-        ]),
-        &opts,
-        |_| {},
-    )
-    .unwrap();
-    assert_eq!(sync.reports.len(), refined.reports.len());
-    let (mut tip, mut err) = (0.0f64, 0.0f64);
-    for (a, b) in sync.reports.iter().zip(&refined.reports) {
-        tip = tip.max((a.tip - b.tip).norm());
-        err = err.max((a.error - b.error).abs());
-    }
+    let (_, refined, tip, err) = against_synchronous("refine");
     let s = &refined.summary;
-    println!(
-        "largest tip difference {tip:.4} mm, error difference {err:.4} mm; CG iterations mean {:.2}, max {}, fallbacks {}; factorisations {} in the background, {} at once",
-        s.pcg_iterations_mean,
-        s.pcg_iterations_max,
-        s.pcg_fallbacks,
-        s.background_factorizations,
-        s.immediate_factorizations
-    );
     assert!(tip > 0.0, "identical runs: the setting had no effect");
     assert!(err < 0.05, "tracking errors {err} mm apart");
     assert!(tip < 0.2, "tips {tip} mm apart");
