@@ -24,6 +24,28 @@ pub(crate) fn dot(a: &[f64], b: &[f64]) -> f64 {
     (acc[0] + acc[2]) + (acc[1] + acc[3]) + tail
 }
 
+/// The correctly rounded square root (IEEE 754), as `libm::sqrt`: on x86-64 the `sqrtsd`
+/// instruction through its intrinsic rather than `libm`'s inline assembly, so that the compiler
+/// schedules it and encodes it as the surrounding code (VEX inside the AVX copies).
+#[inline(always)]
+pub(crate) fn sqrt(x: f64) -> f64 {
+    #[cfg(target_arch = "x86_64")]
+    {
+        use core::arch::x86_64::{_mm_cvtsd_f64, _mm_set_sd, _mm_sqrt_sd};
+        // SSE2 is part of the x86-64 baseline.
+        #[allow(unused_unsafe)]
+        let r = unsafe {
+            let v = _mm_set_sd(x);
+            _mm_cvtsd_f64(_mm_sqrt_sd(v, v))
+        };
+        r
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        libm::sqrt(x)
+    }
+}
+
 /// `y += alpha · x`.
 #[inline(always)]
 pub(crate) fn axpy(alpha: f64, x: &[f64], y: &mut [f64]) {

@@ -58,6 +58,28 @@ impl Sym2 {
         (self.cs * y1 - self.sn * y2, self.sn * y1 + self.cs * y2)
     }
 
+    /// [`Self::solve`] lane by lane, `L` right-hand sides `(r1[i], r2[i])` at once (the same
+    /// operations on each lane: the same results), written as loops over the lanes for the
+    /// compiler to vectorise.
+    #[inline(always)]
+    pub(super) fn solve_lanes<const L: usize>(
+        &self,
+        r1: &[f64; L],
+        r2: &[f64; L],
+    ) -> ([f64; L], [f64; L]) {
+        let (mut x1, mut x2) = ([0.0; L], [0.0; L]);
+        for i in 0..L {
+            let (u1, u2) = (
+                self.cs * r1[i] + self.sn * r2[i],
+                -self.sn * r1[i] + self.cs * r2[i],
+            );
+            let (y1, y2) = (u1 / self.l1, u2 / self.l2);
+            x1[i] = self.cs * y1 - self.sn * y2;
+            x2[i] = self.sn * y1 + self.cs * y2;
+        }
+        (x1, x2)
+    }
+
     /// `argmin ½ xᵀ A x + gᵀ x` subject to `|x| ≤ rho` (2-D trust-region problem).
     pub(super) fn disk_minimiser(&self, g1: f64, g2: f64, rho: f64) -> (f64, f64) {
         if !(rho > 0.0) {

@@ -163,19 +163,15 @@ impl<const M: usize> BlockGs<M> {
     /// group's rows of `W` (one read-modify-write of `w` per group, not per row).
     #[inline(always)]
     fn sweep(&mut self, w: &[[f64; M]; M], lambda: &mut [f64; M], omega: f64, lanes: usize) -> f64 {
-        let mut s = Sweep {
-            w,
-            res: &mut self.w,
-            lambda,
+        let groups = Groups {
+            blocks: &self.blocks[..self.n_blocks],
+            factors: &self.factors,
             diag: &self.diag,
             m: padded(self.m, lanes, M),
-            change: 0.0,
         };
-        for b in &self.blocks[..self.n_blocks] {
-            let start = b.start as usize;
-            s.group(b, self.factors[start..].as_flattened(), omega);
-        }
-        finite_change(s.change)
+        let lambda = core::array::from_mut(lambda);
+        let res = core::array::from_mut(&mut self.w);
+        groups.sweep::<1>(w, lambda, res, &[0], omega)[0]
     }
 
     /// `count ≤ K` solves that start from the same `lambda0`, each with its own `δ`
@@ -328,6 +324,12 @@ impl<const M: usize> BlockGs<M> {
 
     /// [`Self::sweep`] for every active solve of a batch, group by group: each solve sees the
     /// same sequence of group updates as alone.
+    ///
+    /// At a sliding point (the bulk of the reduced problems) the local updates of all the
+    /// solves come first, computed together lane by lane ([`sliding_lanes`]), then one pass
+    /// over the point's three rows of `W` updates all the residuals ([`axpy3_batch`]: each
+    /// vector of `W` loaded once for three solves). Every entry of `λ` and of the residuals gets
+    /// the operations, in the order, of the solve alone: the same results.
     #[inline(always)]
     fn sweep_batch<const K: usize>(
         &self,
@@ -337,38 +339,96 @@ impl<const M: usize> BlockGs<M> {
         omega: f64,
         lanes: usize,
     ) -> [f64; K] {
-        let m = padded(self.m, lanes, M);
-        let mut change = [0.0f64; K];
+        let groups = Groups {
+            blocks: &self.blocks[..self.n_blocks],
+            factors: &self.factors,
+            diag: &self.diag,
+            m: padded(self.m, lanes, M),
+        };
+        let mut list = [0usize; K];
+        let mut n = 0;
+        for k in 0..K {
+            if active[k] {
+                list[n] = k;
+                n += 1;
+            }
+        }
         let GsBatch { lambda, res, .. } = batch;
-        let diag = &self.diag;
-        for b in &self.blocks[..self.n_blocks] {
+        groups.sweep(w, lambda, res, &list[..n], omega)
+    }
+}
+
+/// What a sweep reads of a prepared [`BlockGs`]: the groups, their factors, `diag(W)`, and the
+/// rows of the residual the passes update ([`padded`]).
+struct Groups<'a, const M: usize> {
+    blocks: &'a [Block],
+    factors: &'a [[f64; 6]; M],
+    diag: &'a [f64; M],
+    m: usize,
+}
+
+impl<const M: usize> Groups<'_, M> {
+    /// One sweep of the solves `list` (distinct, `< K`): `lambda[k]` and its residual `res[k]`;
+    /// returns each solve's largest change.
+    #[inline(always)]
+    fn sweep<const K: usize>(
+        &self,
+        w: &[[f64; M]; M],
+        lambda: &mut [[f64; M]; K],
+        res: &mut [[f64; M]; K],
+        list: &[usize],
+        omega: f64,
+    ) -> [f64; K] {
+        let (m, diag) = (self.m, self.diag);
+        let mut change = [0.0f64; K];
+        for b in self.blocks {
             let f = self.factors[b.start as usize..].as_flattened();
             let start = b.start as usize;
+            if b.kind == KIND_SLIDING {
+                // The factors unpacked once for all the solves; every local update first (each
+                // solve's own chain), then one pass over the point's rows of `W` for all.
+                let (e, inv_axial) = (Sym2::unpack(&f[0..10]), f[10]);
+                let d = if 1 < K && K <= LANES {
+                    let point = (start, b.mu, b.r0, &e, inv_axial, omega);
+                    sliding_lanes(w, lambda, res, diag, &mut change, list, point)
+                } else {
+                    let mut d = [[0.0; 3]; K];
+                    for &k in list {
+                        let rk = &res[k];
+                        let r = [rk[start], rk[start + 1], rk[start + 2]];
+                        let mut s = Local {
+                            w,
+                            lambda: &mut lambda[k],
+                            diag,
+                            change: change[k],
+                        };
+                        d[k] = s.sliding(start, b.mu, b.r0, &e, inv_axial, omega, &r);
+                        change[k] = s.change;
+                    }
+                    d
+                };
+                let rows = (&w[start][..m], &w[start + 1][..m], &w[start + 2][..m]);
+                axpy3_batch(&d, list, rows, res, m);
+                continue;
+            }
             // The group's kind chosen once for all the solves.
             macro_rules! each {
                 ($s:ident => $op:expr) => {
-                    for k in 0..K {
-                        if active[k] {
-                            let mut $s = Sweep {
-                                w,
-                                res: &mut res[k],
-                                lambda: &mut lambda[k],
-                                diag,
-                                m,
-                                change: change[k],
-                            };
-                            $op;
-                            change[k] = $s.change;
-                        }
+                    for &k in list {
+                        let mut $s = Sweep {
+                            w,
+                            res: &mut res[k],
+                            lambda: &mut lambda[k],
+                            diag,
+                            m,
+                            change: change[k],
+                        };
+                        $op;
+                        change[k] = $s.change;
                     }
                 };
             }
             match b.kind {
-                KIND_SLIDING => {
-                    // The factors unpacked once for all the solves.
-                    let (e, inv_axial) = (Sym2::unpack(&f[0..10]), f[10]);
-                    each!(s => s.sliding_with(start, b.mu, b.r0, &e, inv_axial, omega))
-                }
                 KIND_CONTACT => each!(s => s.contact(start, b.mu, f)),
                 KIND_UNILATERAL => each!(s => s.unilateral(start, f[0], omega)),
                 KIND_BILATERAL => each!(s => s.bilateral(start, b.len as usize, f, omega)),
@@ -376,6 +436,115 @@ impl<const M: usize> BlockGs<M> {
             }
         }
         change.map(finite_change)
+    }
+}
+
+/// Lanes of [`sliding_lanes`]: the solves of a batch updated together (at most [`LANES`]).
+const LANES: usize = 8;
+
+/// The local update of sliding point `(s, μ, r_0, e, 1 / W_aa, ω)` ([`Local::sliding`]) for every
+/// solve of `list` (`K ≤ LANES`), computed lane by lane across the solves: the same operations
+/// on each lane, so the same `λ`, changes and returned `[d1, d2, da]` as one solve at a time,
+/// with one chain of vector operations (one vector division, one vector square root) instead
+/// of `K` scalar chains. Lanes of inactive solves and lanes `K..` are computed and discarded.
+#[inline(always)]
+fn sliding_lanes<const M: usize, const K: usize>(
+    w: &[[f64; M]; M],
+    lambda: &mut [[f64; M]; K],
+    res: &[[f64; M]; K],
+    diag: &[f64; M],
+    change: &mut [f64; K],
+    list: &[usize],
+    (s, mu, r0, e, inv_axial, omega): (usize, f64, f64, &Sym2, f64, f64),
+) -> [[f64; 3]; K] {
+    let a = s + 2;
+    let (mut nr0, mut nr1, mut r2) = ([0.0; LANES], [0.0; LANES], [0.0; LANES]);
+    let (mut l0, mut l1, mut la) = ([0.0; LANES], [0.0; LANES], [0.0; LANES]);
+    for k in 0..K.min(LANES) {
+        (nr0[k], nr1[k], r2[k]) = (-res[k][s], -res[k][s + 1], res[k][a]);
+        (l0[k], l1[k], la[k]) = (lambda[k][s], lambda[k][s + 1], lambda[k][a]);
+    }
+    let (mut d1, mut d2) = e.solve_lanes(&nr0, &nr1);
+    let (wsa, ws1a) = (w[s][a], w[s + 1][a]);
+    let mut da = [0.0; LANES];
+    for i in 0..LANES {
+        d1[i] *= omega;
+        d2[i] *= omega;
+        l0[i] += d1[i];
+        l1[i] += d2[i];
+        // As `Local::sliding`: plain sqrt of the lateral force, the axial row clamped.
+        let lat = crate::math::sqrt(l0[i] * l0[i] + l1[i] * l1[i]);
+        let bound = mu * lat + r0;
+        let wa = r2[i] + d1[i] * wsa + d2[i] * ws1a;
+        let new = (la[i] - omega * wa * inv_axial).max(-bound).min(bound);
+        da[i] = new - la[i];
+        la[i] = new;
+    }
+    let mut d = [[0.0; 3]; K];
+    debug_assert!(K <= LANES);
+    for &k in list {
+        if k >= LANES {
+            // Never: callers keep `K ≤ LANES`.
+            continue;
+        }
+        (lambda[k][s], lambda[k][s + 1], lambda[k][a]) = (l0[k], l1[k], la[k]);
+        for (i, x) in [(s, d1[k]), (s + 1, d2[k]), (a, da[k])] {
+            let x = libm::fabs(x * diag[i]);
+            if x > change[k] {
+                change[k] = x;
+            }
+        }
+        d[k] = [d1[k], d2[k], da[k]];
+    }
+    d
+}
+
+/// `res[k] += d[k][0] x0 + d[k][1] x1 + d[k][2] x2` over rows `0..m` for every `k` of `list`,
+/// solves taken three at a time so that each vector of the three rows of `W` is loaded once for
+/// the three residuals: per entry exactly the operations of [`axpy3`], the same result.
+#[inline(always)]
+fn axpy3_batch<const M: usize, const K: usize>(
+    d: &[[f64; 3]; K],
+    list: &[usize],
+    (x0, x1, x2): (&[f64], &[f64], &[f64]),
+    res: &mut [[f64; M]; K],
+    m: usize,
+) {
+    let m = m.min(M).min(x0.len()).min(x1.len()).min(x2.len());
+    let (x0, x1, x2) = (&x0[..m], &x1[..m], &x2[..m]);
+    let mut it = list.chunks_exact(3);
+    for t in &mut it {
+        let Ok([ya, yb, yc]) = res.get_disjoint_mut([t[0], t[1], t[2]]) else {
+            // Not three distinct solves (never, `list` is): one at a time.
+            for &k in t {
+                axpy3(d[k], x0, x1, x2, &mut res[k][..m]);
+            }
+            continue;
+        };
+        let (da, db, dc) = (d[t[0]], d[t[1]], d[t[2]]);
+        let (ya, yb, yc) = (&mut ya[..m], &mut yb[..m], &mut yc[..m]);
+        for i in 0..m {
+            let (u0, u1, u2) = (x0[i], x1[i], x2[i]);
+            ya[i] += da[0] * u0 + da[1] * u1 + da[2] * u2;
+            yb[i] += db[0] * u0 + db[1] * u1 + db[2] * u2;
+            yc[i] += dc[0] * u0 + dc[1] * u1 + dc[2] * u2;
+        }
+    }
+    let rest = it.remainder();
+    if let [a, b] = *rest
+        && let Ok([ya, yb]) = res.get_disjoint_mut([a, b])
+    {
+        let (da, db) = (d[a], d[b]);
+        let (ya, yb) = (&mut ya[..m], &mut yb[..m]);
+        for i in 0..m {
+            let (u0, u1, u2) = (x0[i], x1[i], x2[i]);
+            ya[i] += da[0] * u0 + da[1] * u1 + da[2] * u2;
+            yb[i] += db[0] * u0 + db[1] * u1 + db[2] * u2;
+        }
+    } else {
+        for &k in rest {
+            axpy3(d[k], x0, x1, x2, &mut res[k][..m]);
+        }
     }
 }
 
@@ -479,19 +648,6 @@ struct Sweep<'a, const M: usize> {
 }
 
 impl<const M: usize> Sweep<'_, M> {
-    /// The update of group `b` (packed factors `f`).
-    #[inline(always)]
-    fn group(&mut self, b: &Block, f: &[f64], omega: f64) {
-        let start = b.start as usize;
-        match b.kind {
-            KIND_BILATERAL => self.bilateral(start, b.len as usize, f, omega),
-            KIND_UNILATERAL => self.unilateral(start, f[0], omega),
-            KIND_CONTACT => self.contact(start, b.mu, f),
-            KIND_SLIDING => self.sliding(start, b.mu, b.r0, f, omega),
-            _ => {}
-        }
-    }
-
     /// Records the change `d` of row `i`. A compare and select rather than `f64::max` (one
     /// `maxsd`, no NaN fix-up): the same result, since `change` starts at 0 and is never NaN,
     /// and a NaN `|W_ii d|` is skipped by both.
@@ -572,42 +728,135 @@ impl<const M: usize> Sweep<'_, M> {
         self.record(s + 1, d1);
         self.record(s + 2, d2);
     }
+}
 
-    /// Sliding point `[l1, l2, axial]`: the lateral pair as a bilateral 2×2 block, then the axial
-    /// row clamped to `|λ_a| ≤ μ_n |λ_l| + r_0`.
+/// The local update of a group given its rows `r` of the residual: `λ` and the largest change
+/// so far (as [`Sweep`], without the residual).
+struct Local<'a, const M: usize> {
+    w: &'a [[f64; M]; M],
+    lambda: &'a mut [f64; M],
+    diag: &'a [f64; M],
+    change: f64,
+}
+
+impl<const M: usize> Local<'_, M> {
+    /// As [`Sweep::record`].
     #[inline(always)]
-    fn sliding(&mut self, s: usize, mu: f64, r0: f64, f: &[f64], omega: f64) {
-        self.sliding_with(s, mu, r0, &Sym2::unpack(&f[0..10]), f[10], omega);
+    fn record(&mut self, i: usize, d: f64) {
+        let x = libm::fabs(d * self.diag[i]);
+        if x > self.change {
+            self.change = x;
+        }
     }
 
-    /// [`Self::sliding`] with its factors unpacked: the lateral block `e`, `1 / W_aa`.
+    /// Sliding point at row `s` whose residual rows are `r`: updates `λ` and the change,
+    /// returns the changes `[d1, d2, da]` to apply to the residual (always applied, even all
+    /// zero).
+    #[allow(clippy::too_many_arguments)]
     #[inline(always)]
-    fn sliding_with(&mut self, s: usize, mu: f64, r0: f64, e: &Sym2, inv_axial: f64, omega: f64) {
-        let (w, m) = (self.w, self.m);
+    fn sliding(
+        &mut self,
+        s: usize,
+        mu: f64,
+        r0: f64,
+        e: &Sym2,
+        inv_axial: f64,
+        omega: f64,
+        r: &[f64; 3],
+    ) -> [f64; 3] {
+        let w = self.w;
         let lambda = &mut *self.lambda;
-        let (d1, d2) = e.solve(-self.res[s], -self.res[s + 1]);
+        let (d1, d2) = e.solve(-r[0], -r[1]);
         let (d1, d2) = (omega * d1, omega * d2);
         lambda[s] += d1;
         lambda[s + 1] += d2;
         // Plain sqrt, not `hypot` (5× cheaper; overflow would need |λ| > 1e154 N,
         // and an infinite bound still clamps to a finite λ_a).
-        let lat = libm::sqrt(lambda[s] * lambda[s] + lambda[s + 1] * lambda[s + 1]);
+        let lat = crate::math::sqrt(lambda[s] * lambda[s] + lambda[s + 1] * lambda[s + 1]);
         let bound = mu * lat + r0;
         let a = s + 2;
         // w_a after the lateral update.
-        let wa = self.res[a] + d1 * w[s][a] + d2 * w[s + 1][a];
+        let wa = r[2] + d1 * w[s][a] + d2 * w[s + 1][a];
         let new = (lambda[a] - omega * wa * inv_axial).max(-bound).min(bound);
         let da = new - lambda[a];
         lambda[a] = new;
-        axpy3(
-            [d1, d2, da],
-            &w[s][..m],
-            &w[s + 1][..m],
-            &w[a][..m],
-            &mut self.res[..m],
-        );
         self.record(s, d1);
         self.record(s + 1, d2);
         self.record(a, da);
+        [d1, d2, da]
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::expect_used, clippy::unwrap_used, clippy::panic)]
+mod tests {
+    use super::*;
+    use crate::kinematics::DhChain;
+    use crate::payload::ComplianceFrame;
+    use crate::synthetic::random_frame;
+
+    /// `K` solves of a batch against the same solves one at a time, bit for bit: on a frame with
+    /// the base block, a tip contact (`with_contact`) and sliding points, `δ`s scaled apart so
+    /// that the solves stop at different sweeps (the batch's active set shrinks through 3-, 2-
+    /// and 1-solve passes) and some hit the sweep cap.
+    fn batch_matches_alone<const K: usize>(m: usize, seed: u64, with_contact: bool) {
+        const M: usize = 48;
+        let q = [0.1, 0.3, 2.0, 0.0, 0.5, 0.0];
+        let mut frame = ComplianceFrame::<M>::new_boxed();
+        random_frame(&mut frame, &DhChain::rv1a(), &q, m, seed, with_contact);
+        let mut gs = BlockGs::<M>::new();
+        gs.prepare_frame(&frame).expect("valid frame");
+        let rows = frame.rows();
+        let mut lambda0 = [0.0; M];
+        for i in 0..rows {
+            lambda0[i] = 0.01 * ((i * 7 + 3) % 11) as f64;
+        }
+        let mut product = [0.0; M];
+        gs.product(&frame.w, &lambda0, &mut product);
+        let params = GsParams {
+            tolerance: 1e-7,
+            max_iterations: 25,
+            polish: false,
+            relaxation: 1.2,
+        };
+        let mut batch = GsBatch::<M, K>::new();
+        for k in 0..K {
+            let scale = 1.0 + 0.7 * k as f64;
+            for i in 0..rows {
+                batch.delta[k][i] = frame.delta_free[i] * scale + 0.01 * (k as f64 - 1.0);
+            }
+        }
+        let reports = gs.solve_batch(&frame.w, &lambda0, &product, &mut batch, K, &params);
+        let mut sweeps = [0u32; K];
+        for k in 0..K {
+            let mut lambda = lambda0;
+            let alone = gs.solve_from(
+                &frame.w,
+                &batch.delta[k],
+                &mut lambda,
+                Some(&product),
+                &params,
+            );
+            assert_eq!(reports[k], alone, "report of solve {k}");
+            for i in 0..rows {
+                assert_eq!(
+                    batch.lambda[k][i].to_bits(),
+                    lambda[i].to_bits(),
+                    "λ[{i}] of solve {k}"
+                );
+            }
+            sweeps[k] = alone.iterations;
+        }
+        std::println!("K = {K}, m = {rows}: sweeps {sweeps:?}");
+    }
+
+    #[test]
+    fn batch_is_bitwise_the_solves_alone() {
+        batch_matches_alone::<6>(45, 11, false);
+        batch_matches_alone::<6>(45, 5, true);
+        batch_matches_alone::<7>(42, 3, true);
+        batch_matches_alone::<5>(30, 8, false);
+        batch_matches_alone::<2>(45, 2, true);
+        batch_matches_alone::<1>(45, 4, false);
     }
 }
