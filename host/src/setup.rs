@@ -12,7 +12,7 @@ use crate::fem::Elasticity;
 use crate::fem::beam::BeamSection;
 use crate::fem::tetra::Kinematics;
 use crate::free_motion::{
-    GelModel, GelParams, NeedleModel, NeedleParams, PcgParams, RegionMaterial,
+    GelModel, GelParams, NeedleModel, NeedleParams, PcgParams, RefreshParams, RegionMaterial,
 };
 use crate::joints::{WithJoints, with_joints};
 use crate::mesh::{TetMesh, box_mesh, read_mesh};
@@ -283,6 +283,10 @@ pub fn gel_params(scene: &Scene) -> GelParams {
         refine: (scene.solver.gel_solve == GelSolveSpec::Refine).then_some(PcgParams {
             tolerance: scene.solver.pcg_tolerance,
             max_iterations: scene.solver.pcg_max_iterations as usize,
+        }),
+        refresh: (scene.solver.refresh_rotation > 0.0).then_some(RefreshParams {
+            rotation: scene.solver.refresh_rotation,
+            ceiling: scene.solver.refresh_ceiling as usize,
         }),
     }
 }

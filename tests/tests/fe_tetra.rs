@@ -8,7 +8,7 @@ use needle_host::fem::tetra::{
     CorotationalTetra, Kinematics, largest_rotation_between, rotation_from_deformation,
     rotation_from_deformation_svd,
 };
-use needle_host::free_motion::{GelModel, GelParams, LAG_ROTATION_LIMIT, PcgParams};
+use needle_host::free_motion::{GelModel, GelParams, LAG_ROTATION_LIMIT, PcgParams, RefreshParams};
 use needle_host::linalg::{Cholesky, PcgWork, pcg_solve, pcg_solve_from};
 use needle_host::mesh::{BoxDivisions, TetMesh, box_mesh, box_mesh_with_divisions};
 
@@ -531,6 +531,150 @@ fn background_factorisation_factorises_at_once_when_elements_rotate_far() {
         assert!(largest > LAG_ROTATION_LIMIT);
         assert!(immediate > 1 && adopted > 1);
         same_equilibrium(&mut bg, &f, &params);
+    }
+}
+
+/// Why the adaptive schedule sent a step's matrix to the worker.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Refresh {
+    Rotation,
+    Ceiling,
+}
+
+/// The adaptive refresh of the pipeline (`GelParams::refresh`), with a pipeline of 2 and 3
+/// steps: every step solves with exactly the matrix the rule gives (compared with a model
+/// factorised by hand at those positions). The rule: a job in flight is put in use
+/// `refactor_every` steps after its matrix (the step waits for it); a step sends its matrix to
+/// the idle worker only when an element has rotated by `rotation` or more since the matrix of
+/// the factor it uses, or that matrix is `ceiling` steps old; the first step and a request
+/// factorise at once. The box is loaded, left to settle (the ceiling refreshes), and loaded the
+/// other way (the rotation refreshes); both kinds must occur, and steps must have skipped a
+/// refresh the fixed pipeline would have made. A second run, with its steps delayed so the
+/// worker finishes at other times, repeats every step bit for bit.
+#[test]
+fn background_factorisation_adaptive_refresh_solves_with_the_rules_matrix() {
+    let refresh = RefreshParams {
+        rotation: 0.01,
+        ceiling: 6,
+    };
+    for every in [2, 3] {
+        let (mesh, bottom, params) = background_box();
+        let bg_params = GelParams {
+            background_factorization: true,
+            refactor_every: every,
+            refresh: Some(refresh),
+            ..params.clone()
+        };
+        let mut bg = GelModel::try_new(mesh.clone(), &bottom, &bg_params).unwrap();
+        let mut again = GelModel::try_new(mesh.clone(), &bottom, &bg_params).unwrap();
+        let mut by_hand = GelModel::try_new(mesh, &bottom, &params).unwrap();
+        let down = gravity_like_load(&bg, -4e-3);
+        let up = gravity_like_load(&bg, 4e-3);
+        let mut history: Vec<Vec<Vector3<f64>>> = Vec::new();
+        let mut rotations: Vec<Vec<Matrix3<f64>>> = Vec::new();
+        // The rule: (step whose matrix is in use, step whose matrix is in flight, its steps).
+        let (mut in_use, mut sent, mut in_flight) = (None::<usize>, None::<usize>, 0);
+        let mut refreshes = Vec::new();
+        let (mut skipped, mut dropped) = (0, 0);
+        let mut steps = Vec::new();
+        for k in 0..48 {
+            let f = if k < 30 { &down } else { &up };
+            let request = k == 20;
+            if request {
+                bg.request_refactor();
+            }
+            let x = bg.positions().to_vec();
+            history.push(x.clone());
+            let dx = bg.free_motion(f).unwrap().to_vec();
+            rotations.push(bg.tetra().rotations().to_vec());
+            // The rule, from this step's rotations.
+            if sent.is_some() {
+                in_flight += 1;
+            }
+            let due = sent.is_some() && in_flight >= every;
+            if due {
+                (in_use, sent) = (sent, None);
+            }
+            let lag = in_use.map(|j| (j, largest_rotation_between(&rotations[k], &rotations[j])));
+            let at_once = match lag {
+                None => true,
+                Some((_, l)) => request || l > LAG_ROTATION_LIMIT,
+            };
+            if at_once {
+                dropped += usize::from(sent.is_some());
+                (in_use, sent) = (Some(k), None);
+            } else if let (None, Some((j, lag))) = (sent, lag) {
+                let why = if lag >= refresh.rotation {
+                    Some(Refresh::Rotation)
+                } else if k - j >= refresh.ceiling {
+                    Some(Refresh::Ceiling)
+                } else {
+                    None
+                };
+                match why {
+                    Some(w) => {
+                        (sent, in_flight) = (Some(k), 0);
+                        refreshes.push((k, w));
+                    }
+                    None => skipped += 1,
+                }
+            }
+            assert!(bg.lag_rotation() <= LAG_ROTATION_LIMIT);
+            let source = in_use.unwrap();
+            by_hand.positions_mut().copy_from_slice(&history[source]);
+            by_hand.refactor().unwrap();
+            by_hand.positions_mut().copy_from_slice(&x);
+            let f_int = by_hand.compute_internal_forces().to_vec();
+            let mut expected: Vec<f64> = f.iter().zip(&f_int).map(|(a, b)| a - b).collect();
+            by_hand.solve(&mut expected).unwrap();
+            let scale = expected.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            let err = dx
+                .iter()
+                .zip(&expected)
+                .map(|(a, b)| (a - b).abs())
+                .fold(0.0, f64::max);
+            assert!(
+                err <= 1e-10 * scale,
+                "every {every}, step {k}: free motion differs from the one with step {source}'s matrix by {err:e} mm (scale {scale:e})"
+            );
+            bg.apply_displacement(&dx).unwrap();
+            steps.push(dx);
+        }
+        println!("every {every}: refreshes (step, why) {refreshes:?}; {skipped} steps skipped one");
+        let count = |w| refreshes.iter().filter(|r| r.1 == w).count();
+        assert!(
+            count(Refresh::Rotation) >= 2,
+            "no refresh by rotation: the test is void"
+        );
+        assert!(
+            count(Refresh::Ceiling) >= 2,
+            "no refresh by age: the test is void"
+        );
+        assert!(
+            skipped >= 8,
+            "{skipped} skipped refreshes: the test is void"
+        );
+        let (adopted, immediate) = bg.background_counts().unwrap();
+        assert_eq!(immediate, 2, "the first step and the request");
+        assert_eq!(
+            adopted as usize + dropped + usize::from(sent.is_some()),
+            refreshes.len(),
+            "every matrix sent is put in use, dropped, or still in flight"
+        );
+        // The same steps again, the worker finishing at other times.
+        for (k, dx) in steps.iter().enumerate() {
+            let f = if k < 30 { &down } else { &up };
+            if k % 3 == 1 {
+                std::thread::sleep(std::time::Duration::from_millis(2));
+            }
+            if k == 20 {
+                again.request_refactor();
+            }
+            let dx2 = again.free_motion(f).unwrap().to_vec();
+            assert!(dx2 == *dx, "every {every}, step {k}: a second run differs");
+            again.apply_displacement(&dx2).unwrap();
+        }
+        same_equilibrium(&mut bg, &down, &params);
     }
 }
 

@@ -14,6 +14,24 @@ use std::sync::mpsc::{Receiver, SyncSender, TryRecvError, sync_channel};
 /// by about `2θ` relative, and a Newton step with a matrix off by ε contracts by about ε.
 pub const LAG_ROTATION_LIMIT: f64 = 0.2;
 
+/// Adaptive refresh of the background pipeline: a step sends its matrix to the idle worker
+/// only when the factor in use has gone stale — an element rotated by `rotation` or more since
+/// the factor's matrix was assembled, or that matrix is `ceiling` steps old. Without it, a
+/// step sends its matrix whenever the worker is idle (every `refactor_every` steps).
+///
+/// The tangent `R K0 Rᵀ` changes only through the element rotations, so a factor whose
+/// elements have not rotated is still the Newton matrix: no factorisation is spent on it.
+/// Consecutive factors' matrices are between `refactor_every` (the pipeline's depth, the floor)
+/// and `ceiling` steps apart; a job in flight is still waited for `refactor_every` steps after
+/// its matrix, so runs repeat bit for bit.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RefreshParams {
+    /// Refresh when an element has rotated by this much or more since the matrix in use [rad].
+    pub rotation: f64,
+    /// Refresh at the latest when the matrix in use is this many steps old.
+    pub ceiling: usize,
+}
+
 /// What the start of a step found of the background factorisation.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub(super) enum Adopted {
@@ -29,6 +47,8 @@ pub(super) enum Adopted {
 /// What a step's free motion did with the factors (background mode).
 #[derive(Clone, Copy, Debug, Default)]
 pub(super) struct FactorEvent {
+    /// What the start of the step found of the job in flight.
+    pub adopted: Adopted,
     /// The step factorised its own matrix at once.
     pub immediate: bool,
     /// The step's matrix was sent to the worker.
@@ -171,18 +191,20 @@ impl LagGuard {
         }
     }
 
-    /// Whether the factor in use (just adopted when `adopted` says so) may serve a step whose
-    /// elements have `rotations`.
-    pub fn accept(&mut self, adopted: Adopted, rotations: &[Matrix3<f64>]) -> bool {
-        if adopted == Adopted::Yes {
-            std::mem::swap(&mut self.in_use, &mut self.sent);
-        }
-        self.lag = largest_rotation_between(rotations, &self.in_use);
-        self.lag <= LAG_ROTATION_LIMIT
+    /// Measures the lag of this step, whose elements have `rotations`, against the matrix of
+    /// the factor it will use: the one in flight when `adopting` (it is due this step), else
+    /// the one in use. Returns it (also kept in [`LagGuard::lag`]).
+    pub fn measure(&mut self, adopting: bool, rotations: &[Matrix3<f64>]) -> f64 {
+        let reference = if adopting { &self.sent } else { &self.in_use };
+        self.lag = largest_rotation_between(rotations, reference);
+        self.lag
     }
 
-    /// Records which matrix the step factorised or sent.
+    /// Records which matrix is in use (adopted) and which the step factorised or sent.
     pub fn record(&mut self, event: FactorEvent, rotations: &[Matrix3<f64>]) {
+        if event.adopted == Adopted::Yes {
+            std::mem::swap(&mut self.in_use, &mut self.sent);
+        }
         if event.immediate {
             self.in_use.copy_from_slice(rotations);
             self.lag = 0.0;

@@ -1,6 +1,6 @@
 //! The gel: corotational tetrahedra, 3 dofs per node, Dirichlet nodes eliminated.
 
-use super::{Elements, FeModel, ModelLayout, PcgParams};
+use super::{Elements, FeModel, ModelLayout, PcgParams, RefreshParams};
 use crate::fem::tetra::{CorotationalTetra, Kinematics};
 use crate::fem::{Elasticity, FemError};
 use crate::mesh::TetMesh;
@@ -47,6 +47,11 @@ pub struct GelParams {
     /// `F⁻¹ g` is replaced by `A⁻¹ g`, `A` the step's own matrix, by CG from it
     /// ([`FeModel::refine_step`]). Ignored with `pcg`.
     pub refine: Option<PcgParams>,
+    /// Adaptive refresh of the background pipeline (with `background_factorization` and the
+    /// direct or refined solve): a step's matrix is sent to the idle worker only when the
+    /// factor in use is stale by [`RefreshParams`]' measure; `None`: whenever the worker is
+    /// idle, every `refactor_every` steps.
+    pub refresh: Option<RefreshParams>,
 }
 
 impl Default for GelParams {
@@ -64,6 +69,7 @@ impl Default for GelParams {
             background_factorization: false,
             pcg: None,
             refine: None,
+            refresh: None,
         }
     }
 }
@@ -196,6 +202,7 @@ impl FeModel<Tets> {
                 background: params.background_factorization,
                 pcg: params.pcg,
                 refine: params.refine.filter(|_| params.pcg.is_none()),
+                refresh: params.refresh.filter(|_| params.pcg.is_none()),
             },
         )
     }

@@ -36,6 +36,11 @@
 //!   background factorisation, and a step whose elements rotated more than
 //!   [`LAG_ROTATION_LIMIT`] since the matrix in use factorise at once. The worker owns a second
 //!   factor buffer; the two are swapped, nothing is allocated per step.
+//! - **Adaptive refresh** (`GelParams::refresh`, [`RefreshParams`]): in that pipeline a step
+//!   sends its matrix to the idle worker only when the factor in use is stale — an element has
+//!   rotated by `rotation` or more since its matrix, or that matrix is `ceiling` steps old — so
+//!   no factorisation is spent while the tangent does not change. A job is still waited for
+//!   `refactor_every` steps after its matrix: runs repeat bit for bit.
 //! - **Preconditioned CG** (`GelParams::pcg`, the asynchronous preconditioner of Courtecuisse
 //!   et al.): every step assembles its own matrix `A = K(x) + M/h²` and solves the exact Newton
 //!   system by conjugate gradients ([`crate::linalg::pcg_solve`]: matrix-vector products with
@@ -71,7 +76,7 @@ mod gel;
 mod needle;
 mod system;
 
-pub use background::LAG_ROTATION_LIMIT;
+pub use background::{LAG_ROTATION_LIMIT, RefreshParams};
 pub use gel::{FillOrdering, GelModel, GelParams, RegionMaterial, Tets};
 pub use needle::{Beams, NeedleModel, NeedleParams};
 pub use system::{PcgParams, PcgStats};
@@ -139,6 +144,7 @@ struct ModelLayout<'a> {
     background: bool,
     pcg: Option<PcgParams>,
     refine: Option<PcgParams>,
+    refresh: Option<RefreshParams>,
 }
 
 impl<E: Elements> FeModel<E> {
@@ -169,6 +175,7 @@ impl<E: Elements> FeModel<E> {
             background: layout.background,
             pcg: layout.pcg,
             refine: layout.refine,
+            refresh: layout.refresh,
         })?;
         // CG solves the current matrix: no rotation guard on the factor's age.
         let lag = (layout.background && layout.pcg.is_none())
@@ -337,9 +344,9 @@ impl<E: Elements> FeModel<E> {
             return Ok(&self.dx);
         }
         let event = self.sys.update_factor(
-            |adopted| {
+            |adopting| {
                 lag.as_mut()
-                    .is_none_or(|g| g.accept(adopted, elements.rotations()))
+                    .map(|g| g.measure(adopting, elements.rotations()))
             },
             |v| elements.assemble(slots, v),
         )?;

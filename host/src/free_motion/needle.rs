@@ -153,6 +153,7 @@ impl FeModel<Beams> {
                 background: false,
                 pcg: None,
                 refine: None,
+                refresh: None,
             },
         )
     }

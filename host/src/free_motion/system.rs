@@ -2,7 +2,7 @@
 //! pattern and its slots, the regularisation `M/h²`, the factor (made at once, or in the
 //! background), and the solves over global dofs.
 
-use super::background::{Adopted, Background, FactorEvent, Job};
+use super::background::{Adopted, Background, FactorEvent, Job, LAG_ROTATION_LIMIT, RefreshParams};
 use crate::fem::FemError;
 use crate::linalg::{
     Cholesky, PcgOutcome, PcgWork, SymmetricMatrix, SymmetricPattern, nested_dissection_order,
@@ -28,7 +28,13 @@ pub(super) struct ReducedSystem {
     work_many: Vec<f64>,
     /// Steps since the factor in use was made (`None`: never factorised).
     pub factor_age: Option<usize>,
+    /// Background mode: steps since the matrix of the factor in use was assembled (`None`:
+    /// never factorised).
+    matrix_age: Option<usize>,
     refactor_every: usize,
+    /// Background mode: the adaptive refresh (`None`: a matrix is sent whenever the worker is
+    /// idle).
+    refresh: Option<RefreshParams>,
     pub refactor_requested: bool,
     /// The factorisation thread (background mode).
     pub background: Option<Background>,
@@ -101,6 +107,7 @@ pub(super) struct SystemLayout<'a, I: Iterator<Item = (usize, usize)>, F: Fn() -
     pub background: bool,
     pub pcg: Option<PcgParams>,
     pub refine: Option<PcgParams>,
+    pub refresh: Option<RefreshParams>,
 }
 
 impl ReducedSystem {
@@ -177,7 +184,9 @@ impl ReducedSystem {
                 work: vec![0.0; n],
                 work_many: Vec::new(),
                 factor_age: None,
+                matrix_age: None,
                 refactor_every: layout.refactor_every.max(1),
+                refresh: layout.refresh,
                 refactor_requested: false,
                 background,
                 pcg,
@@ -307,18 +316,20 @@ impl ReducedSystem {
     }
 
     /// The factor of a step: refactorises if due (`write` fills the elements' values). In
-    /// background mode `lag_ok` says whether the factor in use (just adopted when its argument
-    /// says so) may serve this step.
+    /// background mode `lag` measures the largest element rotation between this step and the
+    /// matrix of the factor it would use (the one due this step when its argument is true);
+    /// `None`: no guard. Above [`LAG_ROTATION_LIMIT`] the step factorises at once; with the
+    /// adaptive refresh, it decides whether the step's matrix is sent.
     ///
     /// # Errors
     /// A failed factorisation, or a stopped background thread.
     pub fn update_factor(
         &mut self,
-        lag_ok: impl FnOnce(Adopted) -> bool,
+        lag: impl FnOnce(bool) -> Option<f64>,
         write: impl Fn(&mut [f64]),
     ) -> Result<FactorEvent, FemError> {
         if self.background.is_some() {
-            return self.update_factor_background(lag_ok, write);
+            return self.update_factor_background(lag, write);
         }
         if self.needs_refactor() {
             self.write_values(write);
@@ -331,7 +342,7 @@ impl ReducedSystem {
 
     fn update_factor_background(
         &mut self,
-        lag_ok: impl FnOnce(Adopted) -> bool,
+        lag: impl FnOnce(bool) -> Option<f64>,
         write: impl Fn(&mut [f64]),
     ) -> Result<FactorEvent, FemError> {
         let mut event = FactorEvent::default();
@@ -342,11 +353,21 @@ impl ReducedSystem {
         // matrix). Assemble this step's matrix first when it will be sent (no job in flight
         // after this step's adoption): that overlaps the tail of the running factorisation.
         let due = bg.spare.is_none() && bg.in_flight_steps + 1 >= self.refactor_every;
-        let will_submit = bg.spare.is_some() || due;
+        let lag = lag(due);
+        // The age of the matrix in use once the due job (if any) is in use.
+        let matrix_age = if due {
+            Some(self.refactor_every)
+        } else {
+            self.matrix_age.map(|a| a + 1)
+        };
+        let wanted = self.refresh_wanted(lag, matrix_age);
+        let idle_after = bg.spare.is_some() || due;
+        let will_submit = idle_after && wanted;
         if will_submit {
             self.stage_background(&write);
         }
         let adopted = self.adopt_background()?;
+        event.adopted = adopted;
         match adopted {
             Adopted::Yes => self.factor_age = Some(0),
             Adopted::Idle => {
@@ -356,7 +377,12 @@ impl ReducedSystem {
             }
             Adopted::Failed => self.factor_age = None,
         }
-        let in_use_ok = self.factor_age.is_some() && lag_ok(adopted);
+        self.matrix_age = match adopted {
+            Adopted::Failed => None,
+            _ => self.factor_age.and(matrix_age),
+        };
+        let lag_ok = lag.is_none_or(|l| l <= LAG_ROTATION_LIMIT);
+        let in_use_ok = self.factor_age.is_some() && lag_ok;
         if !in_use_ok || self.refactor_requested {
             // No factor yet, a request, a failed background factorisation, or elements
             // that rotated too far since the matrix in use: factorise now.
@@ -371,11 +397,22 @@ impl ReducedSystem {
             if let Some(bg) = self.background.as_mut() {
                 bg.immediate += 1;
             }
-        } else if self.background.as_ref().is_some_and(|b| b.spare.is_some()) {
+        } else if will_submit {
             self.submit_background()?;
             event.submitted = true;
         }
         Ok(event)
+    }
+
+    /// Background mode: whether a step should send its matrix to the worker when it is idle,
+    /// given the lag of the factor it uses and the age of that factor's matrix. Always without
+    /// the adaptive refresh; with it, when the lag reaches its rotation or the matrix its
+    /// ceiling (or the lag or the age is unknown).
+    fn refresh_wanted(&self, lag: Option<f64>, matrix_age: Option<usize>) -> bool {
+        let Some(p) = self.refresh else {
+            return true;
+        };
+        lag.is_none_or(|l| !(l < p.rotation)) || matrix_age.is_none_or(|a| a >= p.ceiling)
     }
 
     /// Preconditioned-CG mode: the free-motion solve of a step. Writes this step's matrix
@@ -589,8 +626,10 @@ impl ReducedSystem {
 
     fn factorize_now(&mut self) -> Result<(), FemError> {
         self.factor_age = None;
+        self.matrix_age = None;
         self.chol.factorize(&self.matrix)?;
         self.factor_age = Some(0);
+        self.matrix_age = Some(0);
         self.refactor_requested = false;
         Ok(())
     }

@@ -128,6 +128,12 @@ pub(super) fn default_pcg_tolerance() -> f64 {
 pub(super) fn default_pcg_max_iterations() -> u32 {
     30
 }
+pub(super) fn default_refresh_rotation() -> f64 {
+    0.0
+}
+pub(super) fn default_refresh_ceiling() -> u32 {
+    16
+}
 
 pub(super) fn default_samples() -> usize {
     201

@@ -513,6 +513,17 @@ pub struct SolverSpec {
     /// `"pcg"`: iteration cap; a step that reaches it factorises its own matrix at once.
     #[serde(default = "default_pcg_max_iterations")]
     pub pcg_max_iterations: u32,
+    /// Adaptive refresh of the background pipeline (`"direct"` or `"refine"` with
+    /// `background_factorization`): a step sends its matrix to be factorised only when an
+    /// element has rotated by this much or more since the matrix of the factor in use [rad], or
+    /// that matrix is `refresh_ceiling` steps old. 0: whenever the worker is idle (every
+    /// `refactor_every` steps, the fixed pipeline).
+    #[serde(default = "default_refresh_rotation")]
+    pub refresh_rotation: f64,
+    /// With `refresh_rotation > 0`: the largest interval between the matrices of two
+    /// consecutive factors [steps].
+    #[serde(default = "default_refresh_ceiling")]
+    pub refresh_ceiling: u32,
 }
 
 /// How the gel's free motion solves its Newton system (`solver.gel_solve`).
@@ -554,6 +565,8 @@ impl Default for SolverSpec {
             gel_solve: default_gel_solve(),
             pcg_tolerance: default_pcg_tolerance(),
             pcg_max_iterations: default_pcg_max_iterations(),
+            refresh_rotation: default_refresh_rotation(),
+            refresh_ceiling: default_refresh_ceiling(),
         }
     }
 }

@@ -233,6 +233,16 @@ fn factorisation_defaults_follow_the_mode() {
     assert_eq!(three.solver.refactor_every(), 3);
     let e = set(&[("solver.refactor_every", "0")]).unwrap_err();
     assert_eq!(e.field, "solver.refactor_every");
+    assert_eq!(s.solver.refresh_rotation, 0.0, "the fixed pipeline");
+    assert_eq!(s.solver.refresh_ceiling, 16);
+    let adaptive = set(&[("solver.refresh_rotation", "0.02")]).unwrap();
+    assert_eq!(adaptive.solver.refresh_rotation, 0.02);
+    for bad in ["-0.01", "0.3", "nan"] {
+        let e = set(&[("solver.refresh_rotation", bad)]).unwrap_err();
+        assert_eq!(e.field, "solver.refresh_rotation", "{bad}");
+    }
+    let e = set(&[("solver.refresh_ceiling", "0")]).unwrap_err();
+    assert_eq!(e.field, "solver.refresh_ceiling");
 }
 
 #[test]

@@ -4,6 +4,7 @@
 //! it can only be a typo or an attack (a needle of 10³⁰⁰ MPa, a time step of 10⁻³⁰⁰ s).
 
 use super::{PoseSpec, SampledPath, Scene};
+use crate::free_motion::LAG_ROTATION_LIMIT;
 use needle_core::kinematics::{Kinematics, Robot};
 
 type Check = Result<(), (String, String)>;
@@ -454,6 +455,21 @@ impl Scene {
             return fail(
                 "solver.pcg_max_iterations",
                 format!("must be between 1 and 10000 (got {})", s.pcg_max_iterations),
+            );
+        }
+        if !(0.0..=LAG_ROTATION_LIMIT).contains(&s.refresh_rotation) {
+            return fail(
+                "solver.refresh_rotation",
+                format!(
+                    "must lie in [0, {LAG_ROTATION_LIMIT}] [rad] (got {})",
+                    s.refresh_rotation
+                ),
+            );
+        }
+        if !(1..=10_000).contains(&s.refresh_ceiling) {
+            return fail(
+                "solver.refresh_ceiling",
+                format!("must be between 1 and 10000 (got {})", s.refresh_ceiling),
             );
         }
         Ok(())
