@@ -59,7 +59,7 @@ pub use objective::{Objective, blend_factor, evaluate_objective};
 pub use params::{InverseParams, JacobianMode, StepMethod};
 pub use qp_step::QP_MAX_JOINTS;
 pub use solves::base_violation;
-pub use step::{MAX_BACKTRACKS, MAX_REPLANS, SUFFICIENT_DECREASE};
+pub use step::{MAX_BACKTRACKS, MAX_HELD_HALVINGS, MAX_REPLANS, SUFFICIENT_DECREASE};
 
 use crate::constraint::{ActiveSet, BlockGs, GsBatch};
 use crate::kinematics::Robot;
@@ -103,7 +103,29 @@ pub struct Controller<const M: usize, const N: usize = 6> {
     start_product: [f64; M],
     /// Whether `start_product` belongs to this step's `W'` and `λ_q`.
     start_product_ok: bool,
+    /// The last step, when it held the joints ([`InverseParams::resume_held`]).
+    held: Held<N>,
 }
+
+/// A step that held the joints because its confirming solves rejected every candidate: where,
+/// and how far its halvings of the first stage's step went, so that the next step on the same
+/// joints goes on from there instead of repeating them.
+#[derive(Clone, Copy, Debug)]
+struct Held<const N: usize> {
+    /// The joints held (the frame's `q` of that step).
+    q: [f64; N],
+    /// Halvings of `Δq₁` of the smallest candidate it tried; 0: the last step did not hold.
+    halvings: u32,
+}
+
+impl<const N: usize> Held<N> {
+    const NONE: Self = Self {
+        q: [0.0; N],
+        halvings: 0,
+    };
+}
+
+crate::zeroed::impl_zeroable!(Held<const N> { q, halvings });
 
 /// The λ buffers of a step [N or N·mm].
 #[derive(Clone, Debug)]
@@ -158,6 +180,7 @@ crate::zeroed::impl_zeroable!(Controller<const M, const N> {
     columns,
     start_product,
     start_product_ok,
+    held,
 });
 
 impl<const M: usize, const N: usize> Controller<M, N> {
@@ -185,6 +208,7 @@ impl<const M: usize, const N: usize> Controller<M, N> {
             columns: GsBatch::new(),
             start_product: [0.0; M],
             start_product_ok: false,
+            held: Held::NONE,
         }
     }
 
@@ -236,8 +260,10 @@ impl<const M: usize, const N: usize> Controller<M, N> {
         self
     }
 
-    /// Forgets the previous step's `λ` (next step starts the solver from zero).
+    /// Forgets the previous step's `λ` (next step starts the solver from zero) and whether it
+    /// held the joints.
     pub fn reset_warm_start(&mut self) {
         self.lambda.prev_rows = 0;
+        self.held = Held::NONE;
     }
 }

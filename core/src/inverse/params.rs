@@ -132,6 +132,16 @@ pub struct InverseParams {
     /// `joint_step` can send the step the wrong way; the secant along the rejected step sees
     /// the response the step actually met.
     pub replan_rejected: bool,
+    /// When a [`StepMethod::Qp`] step held the joints (its confirming solves rejected the plan,
+    /// the first stage's step `Δq₁` and its [`super::MAX_BACKTRACKS`] halvings) and the next
+    /// frame comes at the same joints, that step tries the same candidates and then goes on
+    /// halving `Δq₁` from where the held one stopped, up to [`super::MAX_HELD_HALVINGS`] times
+    /// (default true). A frame at held joints is the one the hold was decided on (the gel at
+    /// rest, the target a step further), so the same candidates are rejected again: on
+    /// `helix_half` for 96 steps in a row, while 1/16 of `Δq₁` would have passed
+    /// (`docs/benchmark.md`). Every candidate passes the same confirmation (sufficient decrease,
+    /// clearances); a step that the usual candidates confirm is unchanged.
+    pub resume_held: bool,
 }
 
 // SAFETY: `#[repr(u8)]` and the variant `Solve` has the discriminant 0.
@@ -162,6 +172,7 @@ crate::zeroed::impl_zeroable!(InverseParams {
     qp_heading,
     aim_ahead,
     replan_rejected,
+    resume_held,
 });
 
 impl Default for InverseParams {
@@ -196,6 +207,7 @@ impl Default for InverseParams {
             qp_heading: true,
             aim_ahead: 0.0,
             replan_rejected: false,
+            resume_held: true,
         }
     }
 }

@@ -22,6 +22,12 @@ pub const SUFFICIENT_DECREASE: f64 = 0.1;
 /// final solve did not confirm it, before the joints are held.
 pub const MAX_BACKTRACKS: usize = 3;
 
+/// Most halvings of `Δq₁` a step at the joints of a held one goes to
+/// ([`super::InverseParams::resume_held`]): after two held steps in a row at the same joints,
+/// `Δq₁` down to 2⁻¹¹ of itself (beyond, a step at those joints tries the same candidates: the
+/// tip's change along such a step is a thousandth of the full step's).
+pub const MAX_HELD_HALVINGS: u32 = 2 * (MAX_BACKTRACKS as u32 + 1) + MAX_BACKTRACKS as u32;
+
 /// Most re-plans of a rejected [`super::StepMethod::Qp`] step with the secant-corrected model
 /// (with [`super::InverseParams::replan_rejected`]), before the first stage's step is tried.
 pub const MAX_REPLANS: usize = 2;
@@ -95,6 +101,8 @@ impl<const M: usize, const N: usize> Controller<M, N> {
         cmd: &mut Command<M, N>,
     ) -> Result<SolverReport<N>, StepError> {
         let m = self.prepare(frame)?;
+        let resume = self.resume_held(frame);
+        self.held.halvings = 0;
         let mut report = SolverReport::default();
         let (obj0, base_rep) = self.base_solve(frame, &mut report);
         let (q_new, final_rep) = if Vector4::from(obj0.t).norm_squared() <= self.params.tolerance {
@@ -108,7 +116,7 @@ impl<const M: usize, const N: usize> Controller<M, N> {
                 &jac,
                 &clear,
                 &obj0,
-                (q_new, dq1),
+                (q_new, dq1, resume),
                 base_rep,
                 &mut report,
             )
@@ -165,6 +173,17 @@ impl<const M: usize, const N: usize> Controller<M, N> {
         let obj0 = evaluate_objective(frame, &self.lambda.base, &b0, &self.params);
         report.objective = obj0.t;
         (obj0, rep)
+    }
+
+    /// The halvings of `Δq₁` the last step tried when it held the joints and this frame comes
+    /// at the same joints ([`super::InverseParams::resume_held`]); 0 otherwise.
+    fn resume_held(&self, frame: &ComplianceFrame<M, N>) -> u32 {
+        let h = &self.held;
+        if self.params.resume_held && h.halvings > 0 && h.q == frame.q {
+            h.halvings
+        } else {
+            0
+        }
     }
 
     /// Within tolerance: no motion, `λ_q` is the answer.
@@ -403,7 +422,11 @@ impl<const M: usize, const N: usize> Controller<M, N> {
     ///
     /// The candidates, in order: the planned step (tip and angles), the first stage's step `Δq₁`
     /// (the tip alone), then `Δq₁` halved, up to [`MAX_BACKTRACKS`] times; when none passes, the
-    /// joints are held (the base solve is the answer). Each candidate keeps the joint limits and
+    /// joints are held (the base solve is the answer). A step that comes at the joints the last
+    /// step held, which had halved `Δq₁` down to `resume` times
+    /// ([`super::InverseParams::resume_held`]), tries the same candidates and then goes on
+    /// halving, [`MAX_BACKTRACKS`] + 1 times further (at most [`MAX_HELD_HALVINGS`] in all),
+    /// and holds the joints only when none of those passes either. Each candidate keeps the joint limits and
     /// speeds, the trust region and the linearised clearance rows, which hold at the planned
     /// step, at `Δq₁` and at 0. Before the puncture there is no test: pushing on the surface
     /// builds the force that punctures it without bringing the tip closer. The paper's method
@@ -415,7 +438,7 @@ impl<const M: usize, const N: usize> Controller<M, N> {
         jac: &Jacobian<N>,
         clear: &Clearances<N>,
         obj0: &Objective,
-        (q_new, dq1): ([f64; N], SVector<f64, N>),
+        (q_new, dq1, resume): ([f64; N], SVector<f64, N>, u32),
         base_rep: SolveReport,
         report: &mut SolverReport<N>,
     ) -> ([f64; N], SolveReport) {
@@ -423,8 +446,6 @@ impl<const M: usize, const N: usize> Controller<M, N> {
             let rep = self.final_solve(frame, &q_new, report);
             return (q_new, rep);
         }
-        let tip_sq = |t: &[f64; 4]| t[0] * t[0] + t[1] * t[1] + t[2] * t[2];
-        let e0 = tip_sq(&obj0.t);
         let mut dq = SVector::<f64, N>::zeros();
         for i in 0..N {
             dq[i] = q_new[i] - frame.q[i];
@@ -439,22 +460,8 @@ impl<const M: usize, const N: usize> Controller<M, N> {
         };
         let mut fallback = 0;
         while fallback <= MAX_BACKTRACKS + 1 {
-            let mut q_try = frame.q;
-            for i in 0..N {
-                q_try[i] += dq[i];
-            }
-            let rep = self.final_solve(frame, &q_try, report);
-            let predicted = Vector4::from(obj0.t) + jac * dq;
-            let e_pred = tip_sq(&[predicted[0], predicted[1], predicted[2], 0.0]);
-            let e_after = tip_sq(&report.objective_after);
-            let decrease = e_after <= e0 - SUFFICIENT_DECREASE * (e0 - e_pred).max(0.0)
-                || e_after <= self.params.tolerance;
-            let clear_ok = (0..clear.count).all(|k| {
-                let after = frame.clearance(k, &self.lambda.work);
-                after >= self.params.clearance_margin.min(clear.value[k])
-            });
-            if decrease && clear_ok {
-                return (q_try, rep);
+            if let Some(kept) = self.confirm(frame, (&jac, &clear, obj0), &dq, report) {
+                return kept;
             }
             report.flags |= StatusFlags::BACKTRACKED;
             if replans > 0 {
@@ -477,10 +484,55 @@ impl<const M: usize, const N: usize> Controller<M, N> {
             dq = if fallback == 0 { dq1 } else { dq * 0.5 };
             fallback += 1;
         }
+        // At the joints of a held step: `Δq₁` halved on beyond where the held step stopped.
+        let mut last = MAX_BACKTRACKS as u32;
+        if resume > 0 {
+            last = (resume + MAX_BACKTRACKS as u32 + 1).min(MAX_HELD_HALVINGS);
+            for h in MAX_BACKTRACKS as u32 + 1..=last {
+                let dq = dq1 * libm::ldexp(1.0, -(h as i32));
+                if let Some(kept) = self.confirm(frame, (&jac, &clear, obj0), &dq, report) {
+                    return kept;
+                }
+            }
+        }
+        // Held: how far the halvings went, for a next step at the same joints.
+        self.held = super::Held {
+            q: frame.q,
+            halvings: last,
+        };
         let m = frame.rows();
         self.lambda.work[..m].copy_from_slice(&self.lambda.base[..m]);
         report.objective_after = obj0.t;
         (frame.q, base_rep)
+    }
+
+    /// One candidate `Δq` of [`Self::accept_step`]: the final solve at `q + Δq`, kept (the joints
+    /// and the solve's report) when it confirms the step: a sufficient decrease of the tip's
+    /// error against the linear model's promise and no clearance below `min(margin, before)`.
+    fn confirm(
+        &mut self,
+        frame: &ComplianceFrame<M, N>,
+        (jac, clear, obj0): (&Jacobian<N>, &Clearances<N>, &Objective),
+        dq: &SVector<f64, N>,
+        report: &mut SolverReport<N>,
+    ) -> Option<([f64; N], SolveReport)> {
+        let tip_sq = |t: &[f64; 4]| t[0] * t[0] + t[1] * t[1] + t[2] * t[2];
+        let e0 = tip_sq(&obj0.t);
+        let mut q_try = frame.q;
+        for i in 0..N {
+            q_try[i] += dq[i];
+        }
+        let rep = self.final_solve(frame, &q_try, report);
+        let predicted = Vector4::from(obj0.t) + jac * dq;
+        let e_pred = tip_sq(&[predicted[0], predicted[1], predicted[2], 0.0]);
+        let e_after = tip_sq(&report.objective_after);
+        let decrease = e_after <= e0 - SUFFICIENT_DECREASE * (e0 - e_pred).max(0.0)
+            || e_after <= self.params.tolerance;
+        let clear_ok = (0..clear.count).all(|k| {
+            let after = frame.clearance(k, &self.lambda.work);
+            after >= self.params.clearance_margin.min(clear.value[k])
+        });
+        (decrease && clear_ok).then_some((q_try, rep))
     }
 
     /// Stage 5: the solve at the commanded joints (started from the prediction) → the `λ` the

@@ -441,3 +441,76 @@ fn replanned_steps_are_confirmed_too() {
     std::println!("{differ} of 300 steps re-planned differently");
     assert!(differ > 0, "no frame exercised the re-plan");
 }
+
+/// `InverseParams::resume_held`: a step that held the joints (its confirming solves rejected the
+/// plan, `Δq₁` and its halvings) and the next frame at the same joints. Without the rule the
+/// second step repeats the first one's decision exactly (the same candidates, the same solves,
+/// held again), which on `helix_half` froze the needle for 96 steps in a row while its target
+/// ran on. With it the second step goes on halving `Δq₁` (more solves), and where a smaller step
+/// passes the confirmation it moves the joints, never leaving the tip farther than it found it.
+/// Random inserted frames as in `qp_step_never_leaves_the_tip_farther_than_it_found_it`, with
+/// the Jacobian differenced over 1 rad: a model that over-promises along its own step, as the
+/// 0.01 rad differences did at `helix_half`'s held frames (the map sticks, then slips), where a
+/// step of 1/8 of `Δq₁` still made the error larger and one of 1/16 made it smaller.
+#[test]
+fn held_step_is_not_repeated_on_an_unchanged_frame() {
+    use crate::payload::StatusFlags;
+    let chain = DhChain::rv1a();
+    let q = [0.1, 0.3, 2.0, 0.0, 0.5, 0.0];
+    let mut frame = ComplianceFrame::<48>::new_boxed();
+    let mut cmd = Command::<48>::new_boxed();
+    let tip = |t: &[f64; 4]| (t[0] * t[0] + t[1] * t[1] + t[2] * t[2]).sqrt();
+    let on = InverseParams {
+        joint_step: 1.0,
+        ..InverseParams::default()
+    };
+    assert!(on.resume_held, "the default");
+    let off = InverseParams {
+        resume_held: false,
+        ..on
+    };
+    let (mut held, mut moved) = (0, 0);
+    for seed in 0..1000 {
+        crate::synthetic::random_frame(&mut frame, &chain, &q, 30, seed, true);
+        frame.dt = 1.0;
+        let mut ctrl = Controller::<48>::new_boxed(chain, on);
+        let first = ctrl.step(&frame, &mut cmd).expect("valid frame");
+        let was_held =
+            first.flags & StatusFlags::BACKTRACKED != 0 && first.delta_q.iter().all(|d| *d == 0.0);
+        if !was_held {
+            continue;
+        }
+        held += 1;
+        // The same frame again: the joints as held, the gel as it was.
+        assert_eq!(cmd.q, frame.q);
+        let second = ctrl.step(&frame, &mut cmd).expect("valid frame");
+        // Without the rule: the very same decision.
+        let mut plain = Controller::<48>::new_boxed(chain, off);
+        let a = plain.step(&frame, &mut cmd).expect("valid frame");
+        let b = plain.step(&frame, &mut cmd).expect("valid frame");
+        assert_eq!((a.delta_q, a.solves), (b.delta_q, b.solves), "seed {seed}");
+        assert_eq!(
+            a.delta_q, [0.0; 6],
+            "seed {seed}: held without the rule too"
+        );
+        // With it: more candidates, each confirmed.
+        assert!(
+            second.solves > first.solves,
+            "seed {seed}: {} solves, as many as the held step's {}",
+            second.solves,
+            first.solves
+        );
+        let (before, after) = (tip(&second.objective), tip(&second.objective_after));
+        assert!(
+            after <= before * (1.0 + 1e-12),
+            "seed {seed}: tip error {before} → {after} mm"
+        );
+        if second.delta_q.iter().any(|d| *d != 0.0) {
+            moved += 1;
+            assert!(after < before, "seed {seed}: moved without getting closer");
+        }
+    }
+    std::println!("{held} of 1000 first steps held, {moved} moved on the second");
+    assert!(held > 0, "no frame held the joints");
+    assert!(moved > 0, "no held frame was left by a smaller step");
+}

@@ -101,6 +101,9 @@ pub(super) fn default_aim_ahead() -> f64 {
 pub(super) fn default_replan_rejected() -> bool {
     InverseParams::default().replan_rejected
 }
+pub(super) fn default_resume_held() -> bool {
+    InverseParams::default().resume_held
+}
 pub(super) fn default_limit_avoidance() -> f64 {
     InverseParams::default().limit_avoidance
 }

@@ -422,6 +422,10 @@ pub struct InverseSpec {
     /// the secant along the rejected step (default false).
     #[serde(default = "default_replan_rejected")]
     pub replan_rejected: bool,
+    /// A `"qp"` step at the joints the last step held goes on halving the first stage's step
+    /// from where that step stopped instead of repeating its candidates (default true).
+    #[serde(default = "default_resume_held")]
+    pub resume_held: bool,
     /// Gain of the `"qp"` update's third stage for arms of more than 6 joints: each joint is
     /// moved towards the middle of its range in the null space of the task (0: off; no effect
     /// on 6-joint arms) [-].
@@ -467,6 +471,7 @@ impl Default for InverseSpec {
             qp_heading: default_qp_heading(),
             aim_ahead: default_aim_ahead(),
             replan_rejected: default_replan_rejected(),
+            resume_held: default_resume_held(),
             limit_avoidance: default_limit_avoidance(),
         }
     }
