@@ -207,7 +207,7 @@ impl Default for InverseParams {
             qp_heading: true,
             aim_ahead: 0.0,
             replan_rejected: false,
-            resume_held: true,
+            resume_held: false,
         }
     }
 }

@@ -462,9 +462,10 @@ fn held_step_is_not_repeated_on_an_unchanged_frame() {
     let tip = |t: &[f64; 4]| (t[0] * t[0] + t[1] * t[1] + t[2] * t[2]).sqrt();
     let on = InverseParams {
         joint_step: 1.0,
+        resume_held: true,
         ..InverseParams::default()
     };
-    assert!(on.resume_held, "the default");
+    assert!(!InverseParams::default().resume_held, "off by default");
     let off = InverseParams {
         resume_held: false,
         ..on

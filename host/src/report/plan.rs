@@ -120,14 +120,27 @@ fn factorization(quick: bool, specs: &mut Vec<Spec>) {
         &["simple", "complex"]
     };
     // (overrides beyond the base, parameter text)
-    let variants: [(&[(&str, &str)], &str); 5] = [
+    let variants: [(&[(&str, &str)], &str); 6] = [
         (
-            &[("solver.refactor_every", "1")],
+            &[
+                ("solver.refactor_every", "1"),
+                ("solver.refresh_rotation", "0"),
+            ],
             "background, a factor 1 step old",
         ),
-        (&[], "background, pipeline of 2 steps (default)"),
         (
-            &[("solver.refactor_every", "3")],
+            &[],
+            "background, adaptive refresh: a factor when an element turned 0.05 rad or at 16 steps (default)",
+        ),
+        (
+            &[("solver.refresh_rotation", "0")],
+            "background, pipeline of 2 steps",
+        ),
+        (
+            &[
+                ("solver.refactor_every", "3"),
+                ("solver.refresh_rotation", "0"),
+            ],
             "background, pipeline of 3 steps",
         ),
         (
@@ -141,7 +154,7 @@ fn factorization(quick: bool, specs: &mut Vec<Spec>) {
     ];
     for &scene in scenes {
         for (extra, text) in variants {
-            if quick && extra.len() == 1 && extra[0].0 == "solver.refactor_every" {
+            if quick && extra.iter().any(|(f, _)| *f == "solver.refactor_every") {
                 continue;
             }
             let mut overrides = base(quick);

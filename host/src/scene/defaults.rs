@@ -132,7 +132,7 @@ pub(super) fn default_pcg_max_iterations() -> u32 {
     30
 }
 pub(super) fn default_refresh_rotation() -> f64 {
-    0.0
+    0.05
 }
 pub(super) fn default_refresh_ceiling() -> u32 {
     16

@@ -233,10 +233,12 @@ fn factorisation_defaults_follow_the_mode() {
     assert_eq!(three.solver.refactor_every(), 3);
     let e = set(&[("solver.refactor_every", "0")]).unwrap_err();
     assert_eq!(e.field, "solver.refactor_every");
-    assert_eq!(s.solver.refresh_rotation, 0.0, "the fixed pipeline");
+    assert_eq!(s.solver.refresh_rotation, 0.05, "the adaptive refresh");
     assert_eq!(s.solver.refresh_ceiling, 16);
     let adaptive = set(&[("solver.refresh_rotation", "0.02")]).unwrap();
     assert_eq!(adaptive.solver.refresh_rotation, 0.02);
+    let fixed = set(&[("solver.refresh_rotation", "0")]).unwrap();
+    assert_eq!(fixed.solver.refresh_rotation, 0.0, "the fixed pipeline");
     for bad in ["-0.01", "0.3", "nan"] {
         let e = set(&[("solver.refresh_rotation", bad)]).unwrap_err();
         assert_eq!(e.field, "solver.refresh_rotation", "{bad}");
@@ -308,11 +310,11 @@ fn the_update_method_clearance_margin_and_qp_angle_weight_reach_the_core_and_are
     assert_eq!(s.inverse_params().qp_angle_weight, 10.0);
     assert!(s.inverse_params().qp_heading, "the default");
     assert!(!s.inverse_params().replan_rejected, "the default");
-    assert!(s.inverse_params().resume_held, "the default");
+    assert!(!s.inverse_params().resume_held, "the default");
     let o = s
         .with_overrides(&[
             ("inverse.replan_rejected".into(), "true".into()),
-            ("inverse.resume_held".into(), "false".into()),
+            ("inverse.resume_held".into(), "true".into()),
             ("inverse.method".into(), "\"paper\"".into()),
             ("inverse.clearance_margin".into(), "0.5".into()),
             ("inverse.qp_angle_weight".into(), "3".into()),
@@ -321,7 +323,7 @@ fn the_update_method_clearance_margin_and_qp_angle_weight_reach_the_core_and_are
         .expect("overrides");
     assert!(!o.inverse_params().qp_heading);
     assert!(o.inverse_params().replan_rejected);
-    assert!(!o.inverse_params().resume_held);
+    assert!(o.inverse_params().resume_held);
     assert_eq!(o.inverse_params().method, StepMethod::Paper);
     assert_eq!(o.inverse_params().clearance_margin, 0.5);
     assert_eq!(o.inverse_params().qp_angle_weight, 3.0);

@@ -175,7 +175,8 @@ pub(crate) fn setting(f: &RunFacts) -> (PointKind, String) {
     }
 }
 
-/// `pipeline 2` (background factorisation, a factor every 2 steps: the default) or
+/// `adaptive 2` (background factorisation, the adaptive refresh with a pipeline of 2: the
+/// default), `pipeline 2` (a factor every 2 steps, `solver.refresh_rotation = 0`) or
 /// `synchronous`, from a run's overrides.
 pub(crate) fn factorization_setting(overrides: &[(String, String)]) -> String {
     let get = |field: &str| {
@@ -188,7 +189,13 @@ pub(crate) fn factorization_setting(overrides: &[(String, String)]) -> String {
     if get("solver.background_factorization") == Some("false") {
         return "synchronous".into();
     }
-    format!("pipeline {}", get("solver.refactor_every").unwrap_or("2"))
+    let depth = get("solver.refactor_every").unwrap_or("2");
+    let fixed = get("solver.refresh_rotation").and_then(|v| v.parse::<f64>().ok()) == Some(0.0);
+    if fixed {
+        format!("pipeline {depth}")
+    } else {
+        format!("adaptive {depth}")
+    }
 }
 
 /// The point of a run (none when it did not start or has no finite e_mean or CPU time).
@@ -227,7 +234,7 @@ pub(crate) fn speed_points(facts: &[RunFacts], scene: &str) -> Vec<SpeedPoint> {
 }
 
 /// The default settings in words, from the controller's own inverse run of any scene:
-/// `δq 0.01 rad, d 20 mm, d_n 10 mm, pipeline 2`.
+/// `δq 0.01 rad, d 20 mm, d_n 10 mm, adaptive 2`.
 pub(crate) fn default_settings(facts: &[RunFacts]) -> Option<String> {
     let f = facts
         .iter()
@@ -488,7 +495,10 @@ mod tests {
             run("simple", &[Group::Controllers]),
         ];
         facts[1].delta_q = 0.001;
-        facts[2].overrides = vec![("solver.refactor_every".into(), "3".into())];
+        facts[2].overrides = vec![
+            ("solver.refactor_every".into(), "3".into()),
+            ("solver.refresh_rotation".into(), "0".into()),
+        ];
         facts[3].overrides = vec![("solver.background_factorization".into(), "false".into())];
         facts[4].nodes = 609;
         facts[5].naive = true;
@@ -514,7 +524,7 @@ mod tests {
         assert_eq!((pts[0].cpu_ms, pts[0].e_mean_mm), (4.8, 0.9));
         assert_eq!(
             default_settings(&facts).as_deref(),
-            Some("δq 0.01 rad, d 20 mm, d_n 10 mm, pipeline 2")
+            Some("δq 0.01 rad, d 20 mm, d_n 10 mm, adaptive 2")
         );
         // A run that did not start has no point.
         facts[1].started = false;
