@@ -451,18 +451,8 @@ fn background_factorisation_solves_with_the_pipelines_matrix() {
             ages.push(bg.factor_age().unwrap());
             assert!(bg.lag_rotation() <= LAG_ROTATION_LIMIT);
             let source = in_use.unwrap();
-            by_hand.positions_mut().copy_from_slice(&history[source]);
-            by_hand.refactor().unwrap();
-            by_hand.positions_mut().copy_from_slice(&x);
-            let f_int = by_hand.compute_internal_forces().to_vec();
-            let mut expected: Vec<f64> = f.iter().zip(&f_int).map(|(a, b)| a - b).collect();
-            by_hand.solve(&mut expected).unwrap();
-            let scale = expected.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-            let err = dx
-                .iter()
-                .zip(&expected)
-                .map(|(a, b)| (a - b).abs())
-                .fold(0.0, f64::max);
+            let (err, scale) =
+                off_the_step_with_matrix_of(&mut by_hand, &history[source], &x, &f, &dx);
             assert!(
                 err <= 1e-10 * scale,
                 "every {every}, step {k}: background free motion differs from the one with step {source}'s matrix by {err:e} mm (scale {scale:e})"
@@ -621,18 +611,8 @@ fn background_factorisation_adaptive_refresh_solves_with_the_rules_matrix() {
             }
             assert!(bg.lag_rotation() <= LAG_ROTATION_LIMIT);
             let source = in_use.unwrap();
-            by_hand.positions_mut().copy_from_slice(&history[source]);
-            by_hand.refactor().unwrap();
-            by_hand.positions_mut().copy_from_slice(&x);
-            let f_int = by_hand.compute_internal_forces().to_vec();
-            let mut expected: Vec<f64> = f.iter().zip(&f_int).map(|(a, b)| a - b).collect();
-            by_hand.solve(&mut expected).unwrap();
-            let scale = expected.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-            let err = dx
-                .iter()
-                .zip(&expected)
-                .map(|(a, b)| (a - b).abs())
-                .fold(0.0, f64::max);
+            let (err, scale) =
+                off_the_step_with_matrix_of(&mut by_hand, &history[source], &x, f, &dx);
             assert!(
                 err <= 1e-10 * scale,
                 "every {every}, step {k}: free motion differs from the one with step {source}'s matrix by {err:e} mm (scale {scale:e})"
@@ -1019,6 +999,30 @@ fn a_mixed_step_biases_the_constraint_force_and_one_matrix_per_step_does_not() {
     assert!(pipeline.1 < 1e-8 && refine.1 < 1e-8);
     assert!(mixed.1 > 1e-5, "the mixed step reached the equilibrium");
     assert!(mixed.0 > 2.0 * pipeline.0 && refine.0 <= pipeline.0);
+}
+
+/// How far the free motion `dx` at positions `x` under `f` is from the one solved by hand with
+/// the matrix assembled at positions `source` (largest difference, and the scale of the solve).
+fn off_the_step_with_matrix_of(
+    by_hand: &mut GelModel,
+    source: &[Vector3<f64>],
+    x: &[Vector3<f64>],
+    f: &[f64],
+    dx: &[f64],
+) -> (f64, f64) {
+    by_hand.positions_mut().copy_from_slice(source);
+    by_hand.refactor().unwrap();
+    by_hand.positions_mut().copy_from_slice(x);
+    let f_int = by_hand.compute_internal_forces().to_vec();
+    let mut expected: Vec<f64> = f.iter().zip(&f_int).map(|(a, b)| a - b).collect();
+    by_hand.solve(&mut expected).unwrap();
+    let scale = expected.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    let err = dx
+        .iter()
+        .zip(&expected)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0, f64::max);
+    (err, scale)
 }
 
 /// A 40 × 20 × 20 mm box of 6 × 3 × 3 cells with its bottom nodes (to clamp).
