@@ -287,6 +287,19 @@ fn seven_joint_limit_stage_moves_in_the_null_space_of_the_tip() {
     assert!(r2 < 1e-2 * r_task, "{r2} vs {r_task}");
 }
 
+/// Asserts that the step `rep` left the tip no farther from its target than it found it (to
+/// round-off); returns the tip error before and after [mm].
+fn assert_tip_not_farther(rep: &crate::payload::SolverReport, seed: u64) -> (f64, f64) {
+    let tip = |t: &[f64; 4]| (t[0] * t[0] + t[1] * t[1] + t[2] * t[2]).sqrt();
+    let (before, after) = (tip(&rep.objective), tip(&rep.objective_after));
+    assert!(
+        after <= before * (1.0 + 1e-12),
+        "seed {seed}: tip error {before} → {after} mm (flags {:#x})",
+        rep.flags
+    );
+    (before, after)
+}
+
 /// The QP step is kept only when the constraint solve at the planned joints confirms it: on
 /// random inserted frames (contacts, sliding friction, 30 rows), the tip's error after the step
 /// is never larger than before it, whatever the linear model promised. Regression test for the
@@ -310,13 +323,7 @@ fn qp_step_never_leaves_the_tip_farther_than_it_found_it() {
         frame.dt = 1.0;
         let mut ctrl = Controller::<48>::new_boxed(chain, params);
         let rep = ctrl.step(&frame, &mut cmd).expect("valid frame");
-        let tip = |t: &[f64; 4]| (t[0] * t[0] + t[1] * t[1] + t[2] * t[2]).sqrt();
-        let (before, after) = (tip(&rep.objective), tip(&rep.objective_after));
-        assert!(
-            after <= before * (1.0 + 1e-12),
-            "seed {seed}: tip error {before} → {after} mm (flags {:#x})",
-            rep.flags
-        );
+        assert_tip_not_farther(&rep, seed);
         if rep.flags & crate::payload::StatusFlags::BACKTRACKED != 0 {
             shortened += 1;
         }
@@ -425,13 +432,7 @@ fn replanned_steps_are_confirmed_too() {
         frame.dt = 1.0;
         let mut ctrl = Controller::<48>::new_boxed(chain, replan);
         let rep = ctrl.step(&frame, &mut cmd).expect("valid frame");
-        let tip = |t: &[f64; 4]| (t[0] * t[0] + t[1] * t[1] + t[2] * t[2]).sqrt();
-        let (before, after) = (tip(&rep.objective), tip(&rep.objective_after));
-        assert!(
-            after <= before * (1.0 + 1e-12),
-            "seed {seed}: tip error {before} → {after} mm (flags {:#x})",
-            rep.flags
-        );
+        assert_tip_not_farther(&rep, seed);
         let mut plain = Controller::<48>::new_boxed(chain, InverseParams::default());
         let rep0 = plain.step(&frame, &mut cmd).expect("valid frame");
         if rep0.delta_q != rep.delta_q {
@@ -459,7 +460,6 @@ fn held_step_is_not_repeated_on_an_unchanged_frame() {
     let q = [0.1, 0.3, 2.0, 0.0, 0.5, 0.0];
     let mut frame = ComplianceFrame::<48>::new_boxed();
     let mut cmd = Command::<48>::new_boxed();
-    let tip = |t: &[f64; 4]| (t[0] * t[0] + t[1] * t[1] + t[2] * t[2]).sqrt();
     let on = InverseParams {
         joint_step: 1.0,
         resume_held: true,
@@ -501,11 +501,7 @@ fn held_step_is_not_repeated_on_an_unchanged_frame() {
             second.solves,
             first.solves
         );
-        let (before, after) = (tip(&second.objective), tip(&second.objective_after));
-        assert!(
-            after <= before * (1.0 + 1e-12),
-            "seed {seed}: tip error {before} → {after} mm"
-        );
+        let (before, after) = assert_tip_not_farther(&second, seed);
         if second.delta_q.iter().any(|d| *d != 0.0) {
             moved += 1;
             assert!(after < before, "seed {seed}: moved without getting closer");
