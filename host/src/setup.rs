@@ -15,8 +15,9 @@ use crate::free_motion::{
     GelModel, GelParams, NeedleModel, NeedleParams, PcgParams, RefreshParams, RegionMaterial,
 };
 use crate::joints::{WithJoints, with_joints};
+use crate::linalg::Precision;
 use crate::mesh::{TetMesh, box_mesh, read_mesh};
-use crate::scene::{GelSolveSpec, InsertionMode, Scene};
+use crate::scene::{FactorPrecisionSpec, GelSolveSpec, InsertionMode, Scene};
 use crate::step::{Insertion, Interaction, StepParams, TargetMotion};
 use crate::support_motion::SupportMotion;
 use crate::world::{ObstacleShape, World, WorldParts, node_frame_offset};
@@ -288,6 +289,10 @@ pub fn gel_params(scene: &Scene) -> GelParams {
             rotation: scene.solver.refresh_rotation,
             ceiling: scene.solver.refresh_ceiling as usize,
         }),
+        factor_precision: match scene.solver.factor_precision {
+            FactorPrecisionSpec::Single => Precision::Single,
+            FactorPrecisionSpec::Double => Precision::Double,
+        },
     }
 }
 

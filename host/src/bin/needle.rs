@@ -382,6 +382,12 @@ fn print_text(s: &RunSummary) {
             s.background_factorizations, s.immediate_factorizations
         );
     }
+    if s.precision_fallbacks > 0 {
+        println!(
+            "gel factor: {} single-precision factorisation(s) failed the probe check and were redone in double (double from then on)",
+            s.precision_fallbacks
+        );
+    }
     if s.pcg_iterations_max > 0 {
         println!(
             "gel CG iterations per step: mean {:.2}, max {} ({} steps did not converge: factorised at once with \"pcg\", the factor's step kept with \"refine\")",

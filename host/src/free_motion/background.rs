@@ -4,7 +4,7 @@
 
 use crate::fem::FemError;
 use crate::fem::tetra::largest_rotation_between;
-use crate::linalg::{Cholesky, LinalgError, SymmetricMatrix, SymmetricPattern};
+use crate::linalg::{Cholesky, LinalgError, Precision, SymmetricMatrix, SymmetricPattern};
 use nalgebra::Matrix3;
 use std::sync::mpsc::{Receiver, SyncSender, TryRecvError, sync_channel};
 
@@ -83,6 +83,8 @@ pub(super) struct Background {
     pub immediate: u64,
     /// Steps since the job in flight was sent.
     pub in_flight_steps: usize,
+    /// The precision fallbacks of the job in flight's factor when it was sent.
+    sent_fallbacks: u64,
 }
 
 impl std::fmt::Debug for Background {
@@ -95,12 +97,17 @@ impl std::fmt::Debug for Background {
 }
 
 impl Background {
-    /// Starts the worker with a second factor buffer for `pattern` (same ordering).
+    /// Starts the worker with a second factor buffer for `pattern` (same ordering and
+    /// precision).
     ///
     /// # Errors
     /// The symbolic factorisation of the second buffer, or [`FemError::WorkerSpawn`].
-    pub fn start(pattern: &SymmetricPattern, order: Option<&[usize]>) -> Result<Self, FemError> {
-        let chol = Cholesky::try_new_ordered(pattern, order, 1)?;
+    pub fn start(
+        pattern: &SymmetricPattern,
+        order: Option<&[usize]>,
+        precision: Precision,
+    ) -> Result<Self, FemError> {
+        let chol = Cholesky::try_new_with_precision(pattern, order, 1, precision)?;
         let (jobs, inbox) = sync_channel::<Box<Job>>(1);
         let (outbox, done) = sync_channel::<Box<Job>>(1);
         std::thread::Builder::new()
@@ -128,7 +135,17 @@ impl Background {
             adopted: 0,
             immediate: 0,
             in_flight_steps: 0,
+            sent_fallbacks: 0,
         })
+    }
+
+    /// Precision fallbacks of the worker's factor buffer (as of its last return, while a job
+    /// is in flight).
+    pub fn precision_fallbacks(&self) -> u64 {
+        match &self.spare {
+            Some(job) => job.chol.precision_fallbacks(),
+            None => self.sent_fallbacks,
+        }
     }
 
     /// Waits for the job in flight, if any, and returns it.
@@ -166,6 +183,7 @@ impl Background {
     /// [`FemError::WorkerStopped`] if the worker is gone.
     pub fn send(&mut self, job: Box<Job>) -> Result<(), FemError> {
         self.in_flight_steps = 0;
+        self.sent_fallbacks = job.chol.precision_fallbacks();
         self.jobs.send(job).map_err(|_| FemError::WorkerStopped)
     }
 }

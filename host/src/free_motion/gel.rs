@@ -3,6 +3,7 @@
 use super::{Elements, FeModel, ModelLayout, PcgParams, RefreshParams};
 use crate::fem::tetra::{CorotationalTetra, Kinematics};
 use crate::fem::{Elasticity, FemError};
+use crate::linalg::Precision;
 use crate::mesh::TetMesh;
 use nalgebra::{Matrix3, Vector3};
 
@@ -52,6 +53,9 @@ pub struct GelParams {
     /// factor in use is stale by [`RefreshParams`]' measure; `None`: whenever the worker is
     /// idle, every `refactor_every` steps.
     pub refresh: Option<RefreshParams>,
+    /// The precision of the gel's factors ([`Precision::Single`]: `f32`, checked after each
+    /// factorisation, see [`crate::linalg::SINGLE_PROBE_TOLERANCE`]).
+    pub factor_precision: Precision,
 }
 
 impl Default for GelParams {
@@ -70,6 +74,7 @@ impl Default for GelParams {
             pcg: None,
             refine: None,
             refresh: None,
+            factor_precision: Precision::Double,
         }
     }
 }
@@ -203,6 +208,7 @@ impl FeModel<Tets> {
                 pcg: params.pcg,
                 refine: params.refine.filter(|_| params.pcg.is_none()),
                 refresh: params.refresh.filter(|_| params.pcg.is_none()),
+                precision: params.factor_precision,
             },
         )
     }

@@ -82,7 +82,7 @@ pub use needle::{Beams, NeedleModel, NeedleParams};
 pub use system::{PcgParams, PcgStats};
 
 use crate::fem::FemError;
-use crate::linalg::{PcgOutcome, SymmetricMatrix};
+use crate::linalg::{PcgOutcome, Precision, SymmetricMatrix};
 use background::LagGuard;
 use nalgebra::{Matrix3, Vector3};
 use system::{ReducedSystem, SystemLayout};
@@ -145,6 +145,7 @@ struct ModelLayout<'a> {
     pcg: Option<PcgParams>,
     refine: Option<PcgParams>,
     refresh: Option<RefreshParams>,
+    precision: Precision,
 }
 
 impl<E: Elements> FeModel<E> {
@@ -176,6 +177,7 @@ impl<E: Elements> FeModel<E> {
             pcg: layout.pcg,
             refine: layout.refine,
             refresh: layout.refresh,
+            precision: layout.precision,
         })?;
         // CG solves the current matrix: no rotation guard on the factor's age.
         let lag = (layout.background && layout.pcg.is_none())
@@ -194,6 +196,12 @@ impl<E: Elements> FeModel<E> {
     /// The elements.
     pub fn elements(&self) -> &E {
         &self.elements
+    }
+
+    /// The precision of the factor in use (`Double` after a fallback) and how many
+    /// single-precision factorisations failed their check and were redone in double.
+    pub fn factor_precision(&self) -> (Precision, u64) {
+        self.sys.factor_precision()
     }
 
     /// Current node positions [mm].

@@ -4,6 +4,7 @@
 use super::{Elements, FeModel, ModelLayout};
 use crate::fem::FemError;
 use crate::fem::beam::{BeamSection, CorotationalBeams};
+use crate::linalg::Precision;
 use nalgebra::{Isometry3, Matrix3, UnitQuaternion, Vector3};
 
 /// Parameters of the needle model.
@@ -154,6 +155,9 @@ impl FeModel<Beams> {
                 pcg: None,
                 refine: None,
                 refresh: None,
+                // The beams' matrix spans stiffnesses far apart (axial, bending, M/h²): in
+                // f32 it is not numerically positive definite. It is small: always f64.
+                precision: Precision::Double,
             },
         )
     }

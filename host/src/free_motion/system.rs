@@ -5,8 +5,8 @@
 use super::background::{Adopted, Background, FactorEvent, Job, LAG_ROTATION_LIMIT, RefreshParams};
 use crate::fem::FemError;
 use crate::linalg::{
-    Cholesky, PcgOutcome, PcgWork, SymmetricMatrix, SymmetricPattern, nested_dissection_order,
-    pcg_solve, pcg_solve_from,
+    Cholesky, PcgOutcome, PcgWork, Precision, SymmetricMatrix, SymmetricPattern,
+    nested_dissection_order, pcg_solve, pcg_solve_from,
 };
 
 /// Marks a fixed (eliminated) dof in the global → reduced map.
@@ -108,6 +108,8 @@ pub(super) struct SystemLayout<'a, I: Iterator<Item = (usize, usize)>, F: Fn() -
     pub pcg: Option<PcgParams>,
     pub refine: Option<PcgParams>,
     pub refresh: Option<RefreshParams>,
+    /// The precision of the factors (see [`Precision`]).
+    pub precision: Precision,
 }
 
 impl ReducedSystem {
@@ -151,9 +153,14 @@ impl ReducedSystem {
             let reduced: Vec<[f64; 3]> = free.iter().map(|&g| c[g]).collect();
             nested_dissection_order(&pattern, &reduced)
         });
-        let chol = Cholesky::try_new_ordered(&pattern, order.as_deref(), 1)?;
+        let chol =
+            Cholesky::try_new_with_precision(&pattern, order.as_deref(), 1, layout.precision)?;
         let background = if layout.background {
-            Some(Background::start(&pattern, order.as_deref())?)
+            Some(Background::start(
+                &pattern,
+                order.as_deref(),
+                layout.precision,
+            )?)
         } else {
             None
         };
@@ -194,6 +201,19 @@ impl ReducedSystem {
             },
             slots,
         ))
+    }
+
+    /// The precision of the factor in use (`Double` after a fallback) and the precision
+    /// fallbacks of both factor buffers (see [`Cholesky::precision_fallbacks`]).
+    pub fn factor_precision(&self) -> (Precision, u64) {
+        let worker = self
+            .background
+            .as_ref()
+            .map_or(0, Background::precision_fallbacks);
+        (
+            self.chol.precision(),
+            self.chol.precision_fallbacks() + worker,
+        )
     }
 
     /// Whether global dof `g` is free.

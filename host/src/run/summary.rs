@@ -5,6 +5,7 @@ use super::metrics::{Outcome, PathMetrics};
 
 use super::{ControllerKind, Observer, StopReason};
 use crate::fem::tetra::StrainStats;
+use crate::linalg::Precision;
 use crate::output::OutputError;
 use crate::setup::Plan;
 use crate::step::StepReport;
@@ -161,6 +162,12 @@ pub struct RunSummary {
     /// factorised at once; `"refine"`: steps whose refinement reached its cap and kept the
     /// factor's step.
     pub pcg_fallbacks: u64,
+    /// The precision of the gel's factor at the end of the run: `"single"` or `"double"`
+    /// (`solver.factor_precision`; `"double"` after a fallback).
+    pub gel_factor_precision: &'static str,
+    /// Single-precision gel factorisations whose probe solve failed its check and that were
+    /// redone in double (the factor then stays double).
+    pub precision_fallbacks: u64,
     /// Times the host held the insertion because no command arrived within the transport's
     /// deadline.
     pub holds: usize,
@@ -297,6 +304,7 @@ impl Statistics {
             .collect();
         let background = world.gel.background_counts().unwrap_or((0, 0));
         let pcg = world.gel.pcg_stats();
+        let (precision, precision_fallbacks) = world.gel.factor_precision();
         let deviation = self.path.deviation();
         let min_clearance_mm = self
             .min_clearance
@@ -385,6 +393,11 @@ impl Statistics {
             }),
             pcg_iterations_max: pcg.map_or(0, |p| p.max_iterations),
             pcg_fallbacks: pcg.map_or(0, |p| p.fallbacks),
+            gel_factor_precision: match precision {
+                Precision::Single => "single",
+                Precision::Double => "double",
+            },
+            precision_fallbacks,
             holds: end.holds.0,
             held_ms: end.holds.1,
             path_deviation_mean_mm: deviation.0,

@@ -8,7 +8,7 @@
 //! background factorisation (a run's choices; the FE model's defaults are the static Newton step,
 //! synchronous); the needle's material and the path sampling have no other home.
 
-use super::{FixedSpec, GelSolveSpec, JacobianSpec, MethodSpec};
+use super::{FactorPrecisionSpec, FixedSpec, GelSolveSpec, JacobianSpec, MethodSpec};
 use crate::free_motion::GelParams;
 use crate::step::{Insertion, Interaction, StepParams};
 use needle_core::inverse::InverseParams;
@@ -136,6 +136,9 @@ pub(super) fn default_refresh_rotation() -> f64 {
 }
 pub(super) fn default_refresh_ceiling() -> u32 {
     16
+}
+pub(super) fn default_factor_precision() -> FactorPrecisionSpec {
+    FactorPrecisionSpec::Single
 }
 
 pub(super) fn default_samples() -> usize {

@@ -529,6 +529,22 @@ pub struct SolverSpec {
     /// consecutive factors [steps].
     #[serde(default = "default_refresh_ceiling")]
     pub refresh_ceiling: u32,
+    /// The precision the gel's factor is stored and solved in: `"single"` (`f32`: half the
+    /// memory and memory traffic; each factor is checked by a probe solve and redone in `f64`,
+    /// for good, when its relative error exceeds 1e-3) or `"double"`. The needle's factor is
+    /// always double.
+    #[serde(default = "default_factor_precision")]
+    pub factor_precision: FactorPrecisionSpec,
+}
+
+/// The precision of the gel's factor (`solver.factor_precision`).
+#[derive(Clone, Copy, Debug, Deserialize, Serialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum FactorPrecisionSpec {
+    /// `f32` factor, checked after each factorisation.
+    Single,
+    /// `f64` factor.
+    Double,
 }
 
 /// How the gel's free motion solves its Newton system (`solver.gel_solve`).
@@ -572,6 +588,7 @@ impl Default for SolverSpec {
             pcg_max_iterations: default_pcg_max_iterations(),
             refresh_rotation: default_refresh_rotation(),
             refresh_ceiling: default_refresh_ceiling(),
+            factor_precision: default_factor_precision(),
         }
     }
 }
