@@ -245,6 +245,15 @@ fn factorisation_defaults_follow_the_mode() {
     }
     let e = set(&[("solver.refresh_ceiling", "0")]).unwrap_err();
     assert_eq!(e.field, "solver.refresh_ceiling");
+    assert_eq!(
+        s.solver.factor_precision,
+        FactorPrecisionSpec::Single,
+        "the checked f32 gel factor"
+    );
+    let double = set(&[("solver.factor_precision", "\"double\"")]).unwrap();
+    assert_eq!(double.solver.factor_precision, FactorPrecisionSpec::Double);
+    let e = set(&[("solver.factor_precision", "\"half\"")]).unwrap_err();
+    assert!(e.to_string().contains("factor_precision"), "{e}");
 }
 
 #[test]
