@@ -111,8 +111,9 @@ fn sweeps(quick: bool, specs: &mut Vec<Spec>) {
     }
 }
 
-/// The gel's factorisation: background pipelines of 1–3 steps and the preconditioned CG
-/// (asynchronous factor) against synchronous.
+/// The gel's factorisation: background pipelines of 1–3 steps, the default with a double
+/// factor, and the preconditioned CG (asynchronous factor) against the synchronous double step
+/// (the paper's exact Newton step).
 fn factorization(quick: bool, specs: &mut Vec<Spec>) {
     let scenes: &[&'static str] = if quick {
         &["complex"]
@@ -120,7 +121,7 @@ fn factorization(quick: bool, specs: &mut Vec<Spec>) {
         &["simple", "complex"]
     };
     // (overrides beyond the base, parameter text)
-    let variants: [(&[(&str, &str)], &str); 6] = [
+    let variants: [(&[(&str, &str)], &str); 7] = [
         (
             &[
                 ("solver.refactor_every", "1"),
@@ -130,7 +131,11 @@ fn factorization(quick: bool, specs: &mut Vec<Spec>) {
         ),
         (
             &[],
-            "background, adaptive refresh: a factor when an element turned 0.05 rad or at 16 steps (default)",
+            "background, adaptive refresh: a factor when an element turned 0.05 rad or at 16 steps, single-precision factor (default)",
+        ),
+        (
+            &[("solver.factor_precision", "\"double\"")],
+            "background, adaptive refresh, double-precision factor",
         ),
         (
             &[("solver.refresh_rotation", "0")],
@@ -148,8 +153,11 @@ fn factorization(quick: bool, specs: &mut Vec<Spec>) {
             "preconditioned CG, background factor at most every 8 steps",
         ),
         (
-            &[("solver.background_factorization", "false")],
-            "synchronous, every step (the paper's)",
+            &[
+                ("solver.background_factorization", "false"),
+                ("solver.factor_precision", "\"double\""),
+            ],
+            "synchronous, every step, double-precision factor (the paper's)",
         ),
     ];
     for &scene in scenes {

@@ -177,7 +177,8 @@ pub(crate) fn setting(f: &RunFacts) -> (PointKind, String) {
 
 /// `adaptive 2` (background factorisation, the adaptive refresh with a pipeline of 2: the
 /// default), `pipeline 2` (a factor every 2 steps, `solver.refresh_rotation = 0`) or
-/// `synchronous`, from a run's overrides.
+/// `synchronous`, from a run's overrides; `, f64` appended for a double-precision factor
+/// (`solver.factor_precision = "double"`).
 pub(crate) fn factorization_setting(overrides: &[(String, String)]) -> String {
     let get = |field: &str| {
         overrides
@@ -186,15 +187,17 @@ pub(crate) fn factorization_setting(overrides: &[(String, String)]) -> String {
             .find(|(f, _)| f == field)
             .map(|(_, v)| v.as_str())
     };
+    let double = get("solver.factor_precision").map(|v| v.trim_matches('"')) == Some("double");
+    let precision = if double { ", f64" } else { "" };
     if get("solver.background_factorization") == Some("false") {
-        return "synchronous".into();
+        return format!("synchronous{precision}");
     }
     let depth = get("solver.refactor_every").unwrap_or("2");
     let fixed = get("solver.refresh_rotation").and_then(|v| v.parse::<f64>().ok()) == Some(0.0);
     if fixed {
-        format!("pipeline {depth}")
+        format!("pipeline {depth}{precision}")
     } else {
-        format!("adaptive {depth}")
+        format!("adaptive {depth}{precision}")
     }
 }
 
@@ -499,7 +502,10 @@ mod tests {
             ("solver.refactor_every".into(), "3".into()),
             ("solver.refresh_rotation".into(), "0".into()),
         ];
-        facts[3].overrides = vec![("solver.background_factorization".into(), "false".into())];
+        facts[3].overrides = vec![
+            ("solver.background_factorization".into(), "false".into()),
+            ("solver.factor_precision".into(), "\"double\"".into()),
+        ];
         facts[4].nodes = 609;
         facts[5].naive = true;
         facts[5].completed = false;
@@ -511,7 +517,7 @@ mod tests {
             [
                 "1485 n, δq 0.001 rad",
                 "1485 n, pipeline 3",
-                "1485 n, synchronous",
+                "1485 n, synchronous, f64",
                 "609 n, default",
                 "1485 n, naive baseline (stopped at step 256)",
                 "1485 n, default",
