@@ -4,8 +4,10 @@
 //!
 //! - `assemble_gel_<n>_nodes`: corotational update (polar decompositions), internal forces and
 //!   the values of `K + M/h²` written into the fixed pattern;
-//! - `factor_gel_<n>_nodes`: the numeric sparse Cholesky factorisation (symbolic done once);
-//! - `solve_gel_<n>_nodes`: one solve with the current factor (and `…_30_rhs`: 30 at once);
+//! - `factor_gel_<n>_nodes`: the numeric sparse Cholesky factorisation (symbolic done once),
+//!   `f64`; `…_f32`: the single-precision factor, with the probe solve that checks it;
+//! - `solve_gel_<n>_nodes`: one solve with the current factor (and `…_30_rhs`: 30 at once;
+//!   `…_f32`: with the single-precision factor);
 //! - `free_motion_needle_40_beams`: one full needle step (forces, Hessians, factor, solve).
 //!
 //! Run: `cargo bench -p needle-host --bench free_motion` (add `-- --quick` for a fast pass).
@@ -15,6 +17,7 @@ use nalgebra::{Isometry3, Vector3};
 use needle_host::fem::Elasticity;
 use needle_host::fem::beam::BeamSection;
 use needle_host::free_motion::{FillOrdering, GelModel, GelParams, NeedleModel, NeedleParams};
+use needle_host::linalg::Precision;
 use needle_host::mesh::box_mesh;
 use std::hint::black_box;
 
@@ -32,10 +35,10 @@ impl Lcg {
 }
 
 fn gel(target: usize) -> GelModel {
-    gel_with(target, FillOrdering::NestedDissection)
+    gel_with(target, FillOrdering::NestedDissection, Precision::Double)
 }
 
-fn gel_with(target: usize, ordering: FillOrdering) -> GelModel {
+fn gel_with(target: usize, ordering: FillOrdering, precision: Precision) -> GelModel {
     let mesh = box_mesh(
         Vector3::new(260.0, -30.0, 0.0),
         Vector3::new(340.0, 30.0, 60.0),
@@ -44,6 +47,7 @@ fn gel_with(target: usize, ordering: FillOrdering) -> GelModel {
     let bottom = mesh.nodes_on_plane(2, 0.0, 1e-9);
     let params = GelParams {
         time_step: Some(0.01),
+        factor_precision: precision,
         ..GelParams::default()
     };
     let mut model = GelModel::try_new_with_ordering(mesh, &bottom, &params, ordering)
@@ -68,7 +72,7 @@ fn bench_gel(c: &mut Criterion) {
             b.iter(|| model.assemble())
         });
         if std::env::var_os("NEEDLE_BENCH_AMD").is_some() && target <= 5000 {
-            let mut amd = gel_with(target, FillOrdering::Amd);
+            let mut amd = gel_with(target, FillOrdering::Amd, Precision::Double);
             group.bench_function(format!("factor_gel_{target}_nodes_amd"), |b| {
                 b.iter(|| amd.factorize().expect("SPD"))
             });
@@ -85,6 +89,20 @@ fn bench_gel(c: &mut Criterion) {
                 model.solve(black_box(&mut x)).expect("factorised");
             })
         });
+        // The single-precision factor (the scene default): its factorisation includes the
+        // probe solve that checks it.
+        let mut single = gel_with(target, FillOrdering::NestedDissection, Precision::Single);
+        group.bench_function(format!("factor_gel_{target}_nodes_f32"), |b| {
+            b.iter(|| single.factorize().expect("SPD"))
+        });
+        assert_eq!(single.factor_precision(), (Precision::Single, 0));
+        group.bench_function(format!("solve_gel_{target}_nodes_f32"), |b| {
+            b.iter(|| {
+                x.copy_from_slice(&rhs);
+                single.solve(black_box(&mut x)).expect("factorised");
+            })
+        });
+        drop(single);
         if target <= 1800 {
             // Compliance needs one column per constraint row: 30 right-hand sides at once.
             let cols = 30;

@@ -3,10 +3,12 @@
 //!
 //! - `full_step_<n>_nodes`: one [`Pipeline::step`](needle_host::step::Pipeline::step) of the
 //!   complex scene, the core in this process ([`needle_bridge::InProcess`]), with a gel of about `n` nodes, the tip about 20 mm deep in the gel (300 steps of
-//!   0.1 mm are run once in the setup, not timed). The gel is factorised in the background
-//!   (the scene default).
+//!   0.1 mm are run once in the setup, not timed). The gel is factorised in the background,
+//!   its factor in single precision (the scene default).
+//! - `full_step_1800_nodes_f64`: the same with `solver.factor_precision = "double"`.
 //! - `full_step_<n>_nodes_synchronous` (1500 and 1800 nodes): the same with
-//!   `solver.background_factorization = false`, the paper's synchronous factorisation.
+//!   `solver.background_factorization = false` and a double-precision factor, the paper's
+//!   synchronous factorisation.
 //! - `full_step_<n>_nodes_pcg` (1800 and 5000 nodes): the same with `solver.gel_solve = "pcg"`
 //!   (conjugate gradients on each step's matrix, preconditioned by a factor refreshed in the
 //!   background at most every 8 steps).
@@ -52,9 +54,12 @@ fn median(mut v: Vec<f64>) -> f64 {
 /// How the gel's free motion is solved in a bench case.
 #[derive(Clone, Copy, PartialEq)]
 enum Mode {
-    /// Direct solve, the factor made in the background (the scene default).
+    /// Direct solve, the factor made in the background (the scene default: single-precision
+    /// factor).
     Background,
-    /// Direct solve, factorised every step (the paper's).
+    /// As `Background` with a double-precision factor.
+    BackgroundDouble,
+    /// Direct solve, factorised every step, double-precision factor (the paper's).
     Synchronous,
     /// Preconditioned CG with the background factor.
     Pcg,
@@ -71,6 +76,9 @@ fn scene(nodes: usize, mode: Mode) -> Scene {
     ];
     if mode == Mode::Pcg {
         overrides.push(("solver.gel_solve".into(), "\"pcg\"".into()));
+    }
+    if matches!(mode, Mode::BackgroundDouble | Mode::Synchronous) {
+        overrides.push(("solver.factor_precision".into(), "\"double\"".into()));
     }
     Scene::builtin("complex")
         .expect("embedded scene")
@@ -105,6 +113,7 @@ fn bench_full_step(c: &mut Criterion) {
         (1100, Mode::Background),
         (1500, Mode::Background),
         (1800, Mode::Background),
+        (1800, Mode::BackgroundDouble),
         (1500, Mode::Synchronous),
         (1800, Mode::Synchronous),
         (1800, Mode::Pcg),
@@ -113,6 +122,7 @@ fn bench_full_step(c: &mut Criterion) {
     for (nodes, mode) in variants {
         let name = match mode {
             Mode::Background => format!("full_step_{nodes}_nodes"),
+            Mode::BackgroundDouble => format!("full_step_{nodes}_nodes_f64"),
             Mode::Synchronous => format!("full_step_{nodes}_nodes_synchronous"),
             Mode::Pcg => format!("full_step_{nodes}_nodes_pcg"),
         };
