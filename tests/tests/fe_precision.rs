@@ -187,3 +187,44 @@ fn single_precision_gel_pipeline_reaches_the_double_equilibrium() {
     assert!(moved > 0.1, "the load moved the gel: {moved}");
     assert!(diff < 1e-8, "{diff:e} mm");
 }
+
+/// A run reports its gel factor's precision: the default is single with no fallback, and on the
+/// simple insertion's first 250 steps (the puncture, then 13 mm inside the gel) its tip and
+/// tracking error stay within 0.05 mm of the double factor's at every step.
+#[test]
+fn a_run_reports_the_single_factor_and_tracks_as_the_double_one() {
+    use needle_host::run::{RunOptions, run};
+    use needle_host::scene::Scene;
+    let opts = RunOptions {
+        steps: Some(250),
+        ..RunOptions::default()
+    };
+    let scene = |o: &[(&str, &str)]| {
+        let o: Vec<(String, String)> = o
+            .iter()
+            .map(|(f, v)| (f.to_string(), v.to_string()))
+            .collect();
+        Scene::builtin("simple")
+            .unwrap()
+            .with_overrides(&o)
+            .unwrap()
+    };
+    let single = run(&scene(&[]), &opts, |_| {}).unwrap();
+    let double = run(
+        &scene(&[("solver.factor_precision", "\"double\"")]),
+        &opts,
+        |_| {},
+    )
+    .unwrap();
+    assert_eq!(single.summary.gel_factor_precision, "single");
+    assert_eq!(single.summary.precision_fallbacks, 0);
+    assert_eq!(double.summary.gel_factor_precision, "double");
+    assert_eq!(single.reports.len(), double.reports.len());
+    let (mut tip, mut err) = (0.0f64, 0.0f64);
+    for (a, b) in single.reports.iter().zip(&double.reports) {
+        tip = tip.max((a.tip - b.tip).norm());
+        err = err.max((a.error - b.error).abs());
+    }
+    println!("single vs double: largest tip difference {tip:e} mm, error difference {err:e} mm");
+    assert!(tip < 0.05 && err < 0.05, "tip {tip} mm, error {err} mm");
+}
