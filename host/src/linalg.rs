@@ -368,8 +368,9 @@ impl Cholesky {
         self.fallbacks
     }
 
-    /// The relative error of the last single-precision factor's probe solve (`None` before the
-    /// first, and for a double factor).
+    /// The relative error of the last single-precision factor's probe solve: `None` before the
+    /// first and for a factor made double from the start; after a fallback, the error of the
+    /// probe that failed.
     pub fn single_probe_error(&self) -> Option<f64> {
         self.probe_error
     }
@@ -447,22 +448,19 @@ impl Cholesky {
         if res.is_err() {
             return false;
         }
-        // The probe: b = A x in f64, x̂ = (L Lᵀ)⁻¹ b in f32.
-        if a.mul_vec(&sf.probe_x, &mut sf.probe_b).is_err() {
+        // The probe: b = A x in f64, x̂ = (L Lᵀ)⁻¹ b with the f32 factor, as any solve.
+        let mut b = std::mem::take(&mut sf.probe_b);
+        if a.mul_vec(&sf.probe_x, &mut b).is_err() {
+            sf.probe_b = b;
             return false;
         }
-        let n = self.symbolic.nrows();
-        for (d, &v) in sf.rhs[..n].iter_mut().zip(&sf.probe_b) {
-            *d = v as f32;
-        }
-        let llt = LltRef::<'_, usize, f32>::new(&self.symbolic, &sf.l);
-        let mat = MatMut::from_column_major_slice_mut(&mut sf.rhs[..n], n, 1);
-        llt.solve_in_place_with_conj(Conj::No, mat, Par::Seq, MemStack::new(&mut self.solve_mem));
+        sf.solve_in_place(&self.symbolic, &mut b, 1, &mut self.solve_mem);
         let (mut err, mut norm) = (0.0f64, 0.0f64);
-        for (&xh, &x) in sf.rhs[..n].iter().zip(&sf.probe_x) {
-            err += (f64::from(xh) - x).powi(2);
+        for (&xh, &x) in b.iter().zip(&sf.probe_x) {
+            err += (xh - x).powi(2);
             norm += x * x;
         }
+        sf.probe_b = b;
         let rel = (err / norm).sqrt();
         self.probe_error = Some(rel);
         rel.is_finite() && rel <= SINGLE_PROBE_TOLERANCE
@@ -505,30 +503,43 @@ impl Cholesky {
                 .map_err(|_| LinalgError::Symbolic)?;
             self.solve_cols = ncols;
         }
-        let stack = MemStack::new(&mut self.solve_mem);
         match self.single.as_mut() {
             None => {
                 let llt = LltRef::<'_, usize, f64>::new(&self.symbolic, &self.l_values);
                 let mat = MatMut::from_column_major_slice_mut(rhs, n, ncols);
+                let stack = MemStack::new(&mut self.solve_mem);
                 llt.solve_in_place_with_conj(Conj::No, mat, Par::Seq, stack);
             }
-            Some(sf) => {
-                if sf.rhs.len() < n * ncols {
-                    sf.rhs.resize(n * ncols, 0.0);
-                }
-                let buf = &mut sf.rhs[..n * ncols];
-                for (d, &v) in buf.iter_mut().zip(rhs.iter()) {
-                    *d = v as f32;
-                }
-                let llt = LltRef::<'_, usize, f32>::new(&self.symbolic, &sf.l);
-                let mat = MatMut::from_column_major_slice_mut(buf, n, ncols);
-                llt.solve_in_place_with_conj(Conj::No, mat, Par::Seq, stack);
-                for (d, &v) in rhs.iter_mut().zip(buf.iter()) {
-                    *d = f64::from(v);
-                }
-            }
+            Some(sf) => sf.solve_in_place(&self.symbolic, rhs, ncols, &mut self.solve_mem),
         }
         Ok(())
+    }
+}
+
+impl SingleFactor {
+    /// Solves `ncols` column-major `f64` right-hand sides in place with the `f32` factor:
+    /// rounded to `f32`, solved, widened back. `mem` must hold the solve scratch for `ncols`.
+    fn solve_in_place(
+        &mut self,
+        symbolic: &SymbolicCholesky<usize>,
+        rhs: &mut [f64],
+        ncols: usize,
+        mem: &mut MemBuffer,
+    ) {
+        let n = symbolic.nrows();
+        if self.rhs.len() < n * ncols {
+            self.rhs.resize(n * ncols, 0.0);
+        }
+        let buf = &mut self.rhs[..n * ncols];
+        for (d, &v) in buf.iter_mut().zip(rhs.iter()) {
+            *d = v as f32;
+        }
+        let llt = LltRef::<'_, usize, f32>::new(symbolic, &self.l);
+        let mat = MatMut::from_column_major_slice_mut(buf, n, ncols);
+        llt.solve_in_place_with_conj(Conj::No, mat, Par::Seq, MemStack::new(mem));
+        for (d, &v) in rhs.iter_mut().zip(buf.iter()) {
+            *d = f64::from(v);
+        }
     }
 }
 

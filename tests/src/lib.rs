@@ -57,3 +57,32 @@ pub fn max_rel_err(a: &[f64], b: &[f64]) -> f64 {
     let den = b.iter().map(|y| y.abs()).fold(0.0, f64::max);
     num / den
 }
+
+/// The 40 × 20 × 20 mm box `[0, 40] × [0, 20] × [0, 20]` meshed with `divisions`, and its
+/// bottom nodes (z = 0), to clamp.
+pub fn clamped_box(
+    divisions: needle_host::mesh::BoxDivisions,
+) -> (needle_host::mesh::TetMesh, Vec<usize>) {
+    let mesh = needle_host::mesh::box_mesh_with_divisions(
+        nalgebra::Vector3::zeros(),
+        nalgebra::Vector3::new(40.0, 20.0, 20.0),
+        divisions,
+    );
+    let bottom = mesh.nodes_on_plane(2, 0.0, 1e-9);
+    (mesh, bottom)
+}
+
+/// The embedded scene `name` with `overrides` (`field`, TOML value) applied.
+///
+/// # Panics
+/// Panics on an unknown scene or an invalid override (a test's own input).
+pub fn builtin_scene(name: &str, overrides: &[(&str, &str)]) -> needle_host::scene::Scene {
+    let overrides: Vec<(String, String)> = overrides
+        .iter()
+        .map(|(f, v)| (f.to_string(), v.to_string()))
+        .collect();
+    needle_host::scene::Scene::builtin(name)
+        .unwrap()
+        .with_overrides(&overrides)
+        .unwrap()
+}

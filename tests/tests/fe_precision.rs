@@ -2,25 +2,18 @@
 //! its solves against the double factor's, its check and fallback to double on matrices it
 //! cannot factorise well, and the gel pipeline with it reaching the double equilibrium.
 
-use nalgebra::Vector3;
 use needle_host::free_motion::{GelModel, GelParams, RefreshParams};
 use needle_host::linalg::{
     Cholesky, Precision, SINGLE_PROBE_TOLERANCE, SymmetricMatrix, SymmetricPattern,
 };
-use needle_host::mesh::{BoxDivisions, TetMesh, box_mesh_with_divisions};
+use needle_host::mesh::{BoxDivisions, TetMesh};
 
 fn clamped_box() -> (TetMesh, Vec<usize>) {
-    let mesh = box_mesh_with_divisions(
-        Vector3::zeros(),
-        Vector3::new(40.0, 20.0, 20.0),
-        BoxDivisions {
-            nx: 8,
-            ny: 4,
-            nz: 4,
-        },
-    );
-    let bottom = mesh.nodes_on_plane(2, 0.0, 1e-9);
-    (mesh, bottom)
+    needle_tests::clamped_box(BoxDivisions {
+        nx: 8,
+        ny: 4,
+        nz: 4,
+    })
 }
 
 fn params() -> GelParams {
@@ -194,24 +187,14 @@ fn single_precision_gel_pipeline_reaches_the_double_equilibrium() {
 #[test]
 fn a_run_reports_the_single_factor_and_tracks_as_the_double_one() {
     use needle_host::run::{RunOptions, run};
-    use needle_host::scene::Scene;
+    use needle_tests::builtin_scene;
     let opts = RunOptions {
         steps: Some(250),
         ..RunOptions::default()
     };
-    let scene = |o: &[(&str, &str)]| {
-        let o: Vec<(String, String)> = o
-            .iter()
-            .map(|(f, v)| (f.to_string(), v.to_string()))
-            .collect();
-        Scene::builtin("simple")
-            .unwrap()
-            .with_overrides(&o)
-            .unwrap()
-    };
-    let single = run(&scene(&[]), &opts, |_| {}).unwrap();
+    let single = run(&builtin_scene("simple", &[]), &opts, |_| {}).unwrap();
     let double = run(
-        &scene(&[("solver.factor_precision", "\"double\"")]),
+        &builtin_scene("simple", &[("solver.factor_precision", "\"double\"")]),
         &opts,
         |_| {},
     )

@@ -1027,17 +1027,11 @@ fn off_the_step_with_matrix_of(
 
 /// A 40 × 20 × 20 mm box of 6 × 3 × 3 cells with its bottom nodes (to clamp).
 fn clamped_box_40x20x20() -> (TetMesh, Vec<usize>) {
-    let mesh = box_mesh_with_divisions(
-        Vector3::zeros(),
-        Vector3::new(40.0, 20.0, 20.0),
-        BoxDivisions {
-            nx: 6,
-            ny: 3,
-            nz: 3,
-        },
-    );
-    let bottom = mesh.nodes_on_plane(2, 0.0, 1e-9);
-    (mesh, bottom)
+    needle_tests::clamped_box(BoxDivisions {
+        nx: 6,
+        ny: 3,
+        nz: 3,
+    })
 }
 
 fn background_box() -> (TetMesh, Vec<usize>, GelParams) {

@@ -7,14 +7,7 @@ use needle_host::run::{RunOptions, RunResult, run};
 use needle_host::scene::Scene;
 
 fn simple(overrides: &[(&str, &str)]) -> Scene {
-    let overrides: Vec<(String, String)> = overrides
-        .iter()
-        .map(|(f, v)| (f.to_string(), v.to_string()))
-        .collect();
-    Scene::builtin("simple")
-        .unwrap()
-        .with_overrides(&overrides)
-        .unwrap()
+    needle_tests::builtin_scene("simple", overrides)
 }
 
 /// The simple insertion's first 250 steps (113 to the puncture, then 13 mm inside the gel)
