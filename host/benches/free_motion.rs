@@ -8,6 +8,9 @@
 //!   `f64`; `…_f32`: the single-precision factor, with the probe solve that checks it;
 //! - `solve_gel_<n>_nodes`: one solve with the current factor (and `…_30_rhs`: 30 at once;
 //!   `…_f32`: with the single-precision factor);
+//! - `polar/rotations_<n>_nodes`: the element rotations (polar decompositions of the deformation
+//!   gradients) of the whole gel, eight elements per SIMD pass; `…_scalar`: one by one, the same
+//!   rotations bit for bit;
 //! - `free_motion_needle_40_beams`: one full needle step (forces, Hessians, factor, solve).
 //!
 //! Run: `cargo bench -p needle-host --bench free_motion` (add `-- --quick` for a fast pass).
@@ -16,6 +19,7 @@ use criterion::{Criterion, criterion_group, criterion_main};
 use nalgebra::{Isometry3, Vector3};
 use needle_host::fem::Elasticity;
 use needle_host::fem::beam::BeamSection;
+use needle_host::fem::tetra::{rotation_from_deformation, rotations_from_deformations};
 use needle_host::free_motion::{FillOrdering, GelModel, GelParams, NeedleModel, NeedleParams};
 use needle_host::linalg::Precision;
 use needle_host::mesh::box_mesh;
@@ -152,5 +156,28 @@ fn bench_needle(c: &mut Criterion) {
     });
 }
 
-criterion_group!(benches, bench_gel, bench_needle);
+fn bench_polar(c: &mut Criterion) {
+    let mut group = c.benchmark_group("polar");
+    for target in [1800, 5000] {
+        let model = gel(target);
+        let tetra = model.tetra();
+        let f: Vec<_> = (0..tetra.len())
+            .map(|e| tetra.deformation_gradient(e, model.positions()))
+            .collect();
+        let mut r = vec![nalgebra::Matrix3::zeros(); f.len()];
+        group.bench_function(format!("rotations_{target}_nodes"), |b| {
+            b.iter(|| rotations_from_deformations(black_box(&f), &mut r))
+        });
+        group.bench_function(format!("rotations_{target}_nodes_scalar"), |b| {
+            b.iter(|| {
+                for (f, r) in black_box(&f).iter().zip(r.iter_mut()) {
+                    *r = rotation_from_deformation(f);
+                }
+            })
+        });
+    }
+    group.finish();
+}
+
+criterion_group!(benches, bench_gel, bench_polar, bench_needle);
 criterion_main!(benches);

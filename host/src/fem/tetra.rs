@@ -109,6 +109,161 @@ fn polar_newton(f: &Matrix3<f64>) -> Option<Matrix3<f64>> {
     None
 }
 
+/// Elements whose polar iterations [`rotations_from_deformations`] runs side by side, one per
+/// SIMD lane (eight `f64`: one AVX-512 vector, two AVX2 ones).
+pub const POLAR_LANES: usize = 8;
+
+/// [`rotation_from_deformation`] of each `f[i]` into `out[i]`, bit for bit, with the scaled
+/// Newton iterations of up to [`POLAR_LANES`] elements run together, one per SIMD lane: each lane
+/// does its element's operations in the scalar order and stops at its own convergence, so only
+/// the instructions are shared. Elements off the fast path (inverted, flat, not converged) take
+/// [`rotation_from_deformation_svd`] one by one, as in the scalar function. The iterations are a
+/// chain of dependent divisions and products per element; side by side they fill the vector
+/// units instead of waiting on each other.
+///
+/// # Panics
+/// If `f` and `out` differ in length.
+pub fn rotations_from_deformations(f: &[Matrix3<f64>], out: &mut [Matrix3<f64>]) {
+    assert_eq!(f.len(), out.len(), "one rotation per deformation gradient");
+    for (f, out) in f.chunks(POLAR_LANES).zip(out.chunks_mut(POLAR_LANES)) {
+        #[cfg(target_arch = "x86_64")]
+        {
+            if std::arch::is_x86_feature_detected!("avx512f") {
+                // SAFETY: AVX-512F support was checked at run time.
+                unsafe { polar_lanes_avx512(f, out) };
+                continue;
+            }
+            if std::arch::is_x86_feature_detected!("avx2") {
+                // SAFETY: AVX2 support was checked at run time.
+                unsafe { polar_lanes_avx2(f, out) };
+                continue;
+            }
+        }
+        polar_lanes(f, out);
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+unsafe fn polar_lanes_avx512(f: &[Matrix3<f64>], out: &mut [Matrix3<f64>]) {
+    polar_lanes(f, out);
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn polar_lanes_avx2(f: &[Matrix3<f64>], out: &mut [Matrix3<f64>]) {
+    polar_lanes(f, out);
+}
+
+/// [`rotation_from_deformation`] of at most [`POLAR_LANES`] gradients, [`polar_newton`]'s
+/// operations lane by lane on entry-major arrays (`x[k][lane]`, `k` the column-major entry).
+#[inline(always)]
+fn polar_lanes(f: &[Matrix3<f64>], out: &mut [Matrix3<f64>]) {
+    const L: usize = POLAR_LANES;
+    debug_assert!(f.len() <= L && f.len() == out.len());
+    // Lanes off the fast path (and past `f.len()`) iterate on the identity: converged at once,
+    // their result unused.
+    let mut x = [[0.0f64; L]; 9];
+    for k in [0, 4, 8] {
+        x[k] = [1.0; L];
+    }
+    let mut pending = [false; L];
+    for (l, fl) in f.iter().enumerate() {
+        let t = fl.norm_squared() / 3.0;
+        let scale3 = t * t.sqrt();
+        if fl.determinant() > 1e-3 * scale3 {
+            pending[l] = true;
+            for (k, xk) in x.iter_mut().enumerate() {
+                xk[l] = fl[k];
+            }
+        }
+    }
+    let mut newton = [false; L];
+    let mut result = [[0.0f64; 9]; L];
+    for k in 0..30 {
+        if !pending.contains(&true) {
+            break;
+        }
+        // The cofactor, column by column: c0 = x1 × x2, c1 = x2 × x0, c2 = x0 × x1.
+        let mut c = [[0.0f64; L]; 9];
+        for l in 0..L {
+            c[0][l] = x[4][l] * x[8][l] - x[5][l] * x[7][l];
+            c[1][l] = x[5][l] * x[6][l] - x[3][l] * x[8][l];
+            c[2][l] = x[3][l] * x[7][l] - x[4][l] * x[6][l];
+            c[3][l] = x[7][l] * x[2][l] - x[8][l] * x[1][l];
+            c[4][l] = x[8][l] * x[0][l] - x[6][l] * x[2][l];
+            c[5][l] = x[6][l] * x[1][l] - x[7][l] * x[0][l];
+            c[6][l] = x[1][l] * x[5][l] - x[2][l] * x[4][l];
+            c[7][l] = x[2][l] * x[3][l] - x[0][l] * x[5][l];
+            c[8][l] = x[0][l] * x[4][l] - x[1][l] * x[3][l];
+        }
+        let mut det = [0.0f64; L];
+        for l in 0..L {
+            det[l] = x[0][l] * c[0][l] + x[1][l] * c[1][l] + x[2][l] * c[2][l];
+        }
+        for l in 0..L {
+            if !(det[l] > 0.0) {
+                pending[l] = false;
+            }
+        }
+        // The determinant scaling, on the first iteration only (a scalar cube root).
+        let mut g = [1.0f64; L];
+        if k == 0 {
+            for l in 0..L {
+                if pending[l] && (det[l] - 1.0).abs() > 1e-2 {
+                    g[l] = 1.0 / det[l].cbrt();
+                }
+            }
+        }
+        let mut a = [0.0f64; L];
+        let mut b = [0.0f64; L];
+        for l in 0..L {
+            a[l] = 0.5 * g[l];
+            b[l] = 0.5 / (g[l] * det[l]);
+        }
+        let mut next = [[0.0f64; L]; 9];
+        for e in 0..9 {
+            for l in 0..L {
+                next[e][l] = x[e][l] * a[l] + c[e][l] * b[l];
+            }
+        }
+        let mut diff = [0.0f64; L];
+        for l in 0..L {
+            diff[l] = (next[0][l] - x[0][l]).abs();
+        }
+        // The largest change (a plain compare: `f64::max`'s NaN handling costs a third of the
+        // iteration; a pending lane's iterates are finite).
+        for e in 1..9 {
+            for l in 0..L {
+                let d = (next[e][l] - x[e][l]).abs();
+                diff[l] = if d > diff[l] { d } else { diff[l] };
+            }
+        }
+        // Every lane steps (a converged one stays at its fixed point, a rotation; a failed one
+        // restarts from the identity below): no masked writes, which would stall the loads of
+        // the next iteration. A lane's result is taken when it converges.
+        x = next;
+        for l in 0..L {
+            if pending[l] && diff[l] <= 1e-8 {
+                pending[l] = false;
+                newton[l] = true;
+                result[l] = core::array::from_fn(|e| x[e][l]);
+            } else if !(det[l] > 0.0) {
+                for (e, xe) in x.iter_mut().enumerate() {
+                    xe[l] = if e % 4 == 0 { 1.0 } else { 0.0 };
+                }
+            }
+        }
+    }
+    for (l, (fl, r)) in f.iter().zip(out.iter_mut()).enumerate() {
+        *r = if newton[l] {
+            Matrix3::from_column_slice(&result[l])
+        } else {
+            rotation_from_deformation_svd(fl)
+        };
+    }
+}
+
 /// Cofactor matrix (`det(X) X⁻ᵀ`).
 #[inline(always)]
 fn cofactor(x: &Matrix3<f64>) -> Matrix3<f64> {
@@ -438,9 +593,13 @@ impl CorotationalTetra {
         if self.kinematics == Kinematics::Linear {
             return;
         }
-        for e in 0..self.tets.len() {
-            let f = self.deformation_gradient(e, x);
-            self.rotations[e] = rotation_from_deformation(&f);
+        let mut f = [Matrix3::zeros(); POLAR_LANES];
+        for e0 in (0..self.tets.len()).step_by(POLAR_LANES) {
+            let n = POLAR_LANES.min(self.tets.len() - e0);
+            for (i, fi) in f[..n].iter_mut().enumerate() {
+                *fi = self.deformation_gradient(e0 + i, x);
+            }
+            rotations_from_deformations(&f[..n], &mut self.rotations[e0..e0 + n]);
         }
     }
 
@@ -475,18 +634,25 @@ impl CorotationalTetra {
     /// same rotations and forces, bit for bit.
     pub fn update_rotations_and_add_internal_forces(&mut self, x: &[Vector3<f64>], f: &mut [f64]) {
         let corotational = self.kinematics == Kinematics::Corotational;
-        for e in 0..self.tets.len() {
-            let fg = self.deformation_gradient(e, x);
-            if corotational {
-                self.rotations[e] = rotation_from_deformation(&fg);
+        let mut fg = [Matrix3::zeros(); POLAR_LANES];
+        for e0 in (0..self.tets.len()).step_by(POLAR_LANES) {
+            let n = POLAR_LANES.min(self.tets.len() - e0);
+            for (i, fi) in fg[..n].iter_mut().enumerate() {
+                *fi = self.deformation_gradient(e0 + i, x);
             }
-            let r = &self.rotations[e];
-            let (_, sigma) = self.strain_stress(e, r, &fg);
-            let p = (r * sigma) * self.volumes[e];
-            for (a, &n) in self.tets[e].iter().enumerate() {
-                let fa = p * self.grads[e][a];
-                for i in 0..3 {
-                    f[3 * n + i] += fa[i];
+            if corotational {
+                rotations_from_deformations(&fg[..n], &mut self.rotations[e0..e0 + n]);
+            }
+            for (i, fg) in fg[..n].iter().enumerate() {
+                let e = e0 + i;
+                let r = &self.rotations[e];
+                let (_, sigma) = self.strain_stress(e, r, fg);
+                let p = (r * sigma) * self.volumes[e];
+                for (a, &n) in self.tets[e].iter().enumerate() {
+                    let fa = p * self.grads[e][a];
+                    for i in 0..3 {
+                        f[3 * n + i] += fa[i];
+                    }
                 }
             }
         }
@@ -604,6 +770,36 @@ mod tests {
             out.push(r.matrix() * s);
         }
         out
+    }
+
+    #[test]
+    fn polar_lanes_are_the_scalar_rotation_bit_for_bit() {
+        // Every kind of gradient (fast path, inverted, flat, NaN) in every lane position, and a
+        // partial last chunk.
+        let mut f = gradients();
+        f.push(Matrix3::zeros());
+        f.push(Matrix3::from_element(f64::NAN));
+        f.push(Matrix3::new(1.0, 2.0, 3.0, 2.0, 4.0, 6.0, 0.0, 0.0, 1e-30));
+        for k in 0..23 {
+            let t = k as f64;
+            f.push(
+                Matrix3::identity() * (1.0 + 1e-4 * t)
+                    + Matrix3::new(0.0, 1e-3 * t, 0.0, -2e-5 * t, 0.0, 0.3, 0.0, 0.0, 0.0),
+            );
+        }
+        for shift in 0..POLAR_LANES {
+            let f = &f[shift..];
+            let mut lanes = vec![Matrix3::zeros(); f.len()];
+            rotations_from_deformations(f, &mut lanes);
+            for (g, r) in f.iter().zip(&lanes) {
+                let scalar = rotation_from_deformation(g);
+                let same = scalar
+                    .iter()
+                    .zip(r.iter())
+                    .all(|(a, b)| a.to_bits() == b.to_bits());
+                assert!(same, "{g}: {r} vs {scalar}");
+            }
+        }
     }
 
     #[test]
