@@ -167,19 +167,26 @@ fn polar_lanes(f: &[Matrix3<f64>], out: &mut [Matrix3<f64>]) {
     for k in [0, 4, 8] {
         x[k] = [1.0; L];
     }
-    let mut pending = [false; L];
+    // The fast-path test of `rotation_from_deformation`, its square roots side by side.
+    let mut t = [0.0f64; L];
+    let mut det0 = [0.0f64; L];
     for (l, fl) in f.iter().enumerate() {
-        let t = fl.norm_squared() / 3.0;
-        let scale3 = t * t.sqrt();
-        if fl.determinant() > 1e-3 * scale3 {
-            pending[l] = true;
+        t[l] = fl.norm_squared() / 3.0;
+        det0[l] = fl.determinant();
+    }
+    let mut pending = [false; L];
+    for l in 0..L {
+        let scale3 = t[l] * t[l].sqrt();
+        pending[l] = l < f.len() && det0[l] > 1e-3 * scale3;
+    }
+    for (l, fl) in f.iter().enumerate() {
+        if pending[l] {
             for (k, xk) in x.iter_mut().enumerate() {
                 xk[l] = fl[k];
             }
         }
     }
     let mut newton = [false; L];
-    let mut result = [[0.0f64; 9]; L];
     for k in 0..30 {
         if !pending.contains(&true) {
             break;
@@ -247,7 +254,7 @@ fn polar_lanes(f: &[Matrix3<f64>], out: &mut [Matrix3<f64>]) {
             if pending[l] && diff[l] <= 1e-8 {
                 pending[l] = false;
                 newton[l] = true;
-                result[l] = core::array::from_fn(|e| x[e][l]);
+                out[l] = Matrix3::from_fn(|i, j| x[3 * j + i][l]);
             } else if !(det[l] > 0.0) {
                 for (e, xe) in x.iter_mut().enumerate() {
                     xe[l] = if e % 4 == 0 { 1.0 } else { 0.0 };
@@ -256,11 +263,9 @@ fn polar_lanes(f: &[Matrix3<f64>], out: &mut [Matrix3<f64>]) {
         }
     }
     for (l, (fl, r)) in f.iter().zip(out.iter_mut()).enumerate() {
-        *r = if newton[l] {
-            Matrix3::from_column_slice(&result[l])
-        } else {
-            rotation_from_deformation_svd(fl)
-        };
+        if !newton[l] {
+            *r = rotation_from_deformation_svd(fl);
+        }
     }
 }
 
