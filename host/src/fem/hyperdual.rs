@@ -12,13 +12,35 @@ use std::ops::{Add, Mul, Neg, Sub};
 /// the two nodal rotation increments (3 + 3).
 pub(crate) const N: usize = 9;
 
+/// Entries of the packed upper Hessian triangle, `N (N + 1) / 2`.
+const H: usize = N * (N + 1) / 2;
+
+/// `(i, j)`, `j ≥ i`, of each packed Hessian entry: row by row of the upper triangle.
+const PAIRS: [(usize, usize); H] = {
+    let mut out = [(0, 0); H];
+    let (mut i, mut k) = (0, 0);
+    while i < N {
+        let mut j = i;
+        while j < N {
+            out[k] = (i, j);
+            k += 1;
+            j += 1;
+        }
+        i += 1;
+    }
+    out
+};
+
 /// A value with exact gradient and Hessian with respect to `N` variables. Only the upper
-/// triangle `h[i][j]`, `j ≥ i`, of the symmetric Hessian is maintained; read it with [`Hd::hess`].
+/// triangle of the symmetric Hessian is stored (packed row by row, [`PAIRS`]); read it with
+/// [`Hd::hess`]. The operators also take references, and [`Hd::mul_add`] / [`Hd::mul_sub`]
+/// accumulate a product in place: a value is 440 bytes, and copying operands and temporaries
+/// cost as much as the arithmetic.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Hd {
     pub v: f64,
     pub g: [f64; N],
-    pub h: [[f64; N]; N],
+    h: [f64; H],
 }
 
 impl Hd {
@@ -27,7 +49,7 @@ impl Hd {
         Self {
             v,
             g: [0.0; N],
-            h: [[0.0; N]; N],
+            h: [0.0; H],
         }
     }
 
@@ -40,21 +62,22 @@ impl Hd {
 
     /// Hessian entry `(i, j)` (either order).
     pub fn hess(&self, i: usize, j: usize) -> f64 {
-        if i <= j { self.h[i][j] } else { self.h[j][i] }
+        let (i, j) = if i <= j { (i, j) } else { (j, i) };
+        // Row i of the packed upper triangle starts after i rows of N, N − 1, … entries, at
+        // i N − i (i − 1) / 2, and holds columns i.. .
+        self.h[i * (2 * N - i - 1) / 2 + j]
     }
 
     /// `f(self)` given `f`, `f'`, `f''` at `self.v`.
-    fn chain(self, f0: f64, f1: f64, f2: f64) -> Self {
-        let mut r = Self::cst(f0);
-        for i in 0..N {
-            r.g[i] = f1 * self.g[i];
+    fn chain(&self, f0: f64, f1: f64, f2: f64) -> Self {
+        Self {
+            v: f0,
+            g: core::array::from_fn(|i| f1 * self.g[i]),
+            h: core::array::from_fn(|k| {
+                let (i, j) = PAIRS[k];
+                f1 * self.h[k] + f2 * self.g[i] * self.g[j]
+            }),
         }
-        for i in 0..N {
-            for j in i..N {
-                r.h[i][j] = f1 * self.h[i][j] + f2 * self.g[i] * self.g[j];
-            }
-        }
-        r
     }
 
     pub fn sqrt(self) -> Self {
@@ -67,37 +90,72 @@ impl Hd {
         self.chain(r, -r * r, 2.0 * r * r * r)
     }
 
-    pub fn scale(self, s: f64) -> Self {
-        let mut r = self;
-        r.v *= s;
-        r.g.iter_mut().for_each(|x| *x *= s);
-        for i in 0..N {
-            for j in i..N {
-                r.h[i][j] *= s;
-            }
+    pub fn scale(&self, s: f64) -> Self {
+        Self {
+            v: self.v * s,
+            g: self.g.map(|x| x * s),
+            h: self.h.map(|x| x * s),
         }
-        r
+    }
+
+    /// The product's entries in the order of [`Mul`], each passed to `put(acc, product)`.
+    #[inline(always)]
+    fn fold_product(&mut self, a: &Hd, b: &Hd, put: impl Fn(f64, f64) -> f64) {
+        self.v = put(self.v, a.v * b.v);
+        for i in 0..N {
+            self.g[i] = put(self.g[i], a.v * b.g[i] + b.v * a.g[i]);
+        }
+        for (k, &(i, j)) in PAIRS.iter().enumerate() {
+            let p = a.v * b.h[k] + b.v * a.h[k] + a.g[i] * b.g[j] + b.g[i] * a.g[j];
+            self.h[k] = put(self.h[k], p);
+        }
+    }
+
+    /// `self + a b`, in place (the same numbers as `self + a * b`).
+    pub fn mul_add(&mut self, a: &Hd, b: &Hd) {
+        self.fold_product(a, b, |s, p| s + p);
+    }
+
+    /// `self − a b`, in place (the same numbers as `self - a * b`).
+    pub fn mul_sub(&mut self, a: &Hd, b: &Hd) {
+        self.fold_product(a, b, |s, p| s - p);
+    }
+}
+
+impl Add<&Hd> for &Hd {
+    type Output = Hd;
+    fn add(self, o: &Hd) -> Hd {
+        Hd {
+            v: self.v + o.v,
+            g: core::array::from_fn(|i| self.g[i] + o.g[i]),
+            h: core::array::from_fn(|k| self.h[k] + o.h[k]),
+        }
     }
 }
 
 impl Add for Hd {
     type Output = Hd;
-    fn add(mut self, o: Hd) -> Hd {
-        self.v += o.v;
-        for i in 0..N {
-            self.g[i] += o.g[i];
-            for j in i..N {
-                self.h[i][j] += o.h[i][j];
-            }
+    fn add(self, o: Hd) -> Hd {
+        &self + &o
+    }
+}
+
+impl Sub<&Hd> for &Hd {
+    type Output = Hd;
+    /// `self + (−o)`, which IEEE arithmetic makes the same numbers as `self − o`.
+    fn sub(self, o: &Hd) -> Hd {
+        Hd {
+            v: self.v - o.v,
+            g: core::array::from_fn(|i| self.g[i] - o.g[i]),
+            h: core::array::from_fn(|k| self.h[k] - o.h[k]),
         }
-        self
     }
 }
 
 impl Sub for Hd {
     type Output = Hd;
     fn sub(self, o: Hd) -> Hd {
-        self + (-o)
+        &self - &o
     }
 }
 
@@ -123,22 +181,19 @@ impl Mul<f64> for Hd {
     }
 }
 
+impl Mul<&Hd> for &Hd {
+    type Output = Hd;
+    fn mul(self, o: &Hd) -> Hd {
+        let mut r = Hd::cst(0.0);
+        r.fold_product(self, o, |_, p| p);
+        r
+    }
+}
+
 impl Mul for Hd {
     type Output = Hd;
     fn mul(self, o: Hd) -> Hd {
-        let mut r = Hd::cst(self.v * o.v);
-        for i in 0..N {
-            r.g[i] = self.v * o.g[i] + o.v * self.g[i];
-        }
-        for i in 0..N {
-            for j in 0..N {
-                r.h[i][j] = self.v * o.h[i][j]
-                    + o.v * self.h[i][j]
-                    + self.g[i] * o.g[j]
-                    + o.g[i] * self.g[j];
-            }
-        }
-        r
+        &self * &o
     }
 }
 
@@ -146,23 +201,33 @@ impl Mul for Hd {
 pub(crate) type V3 = [Hd; 3];
 
 pub(crate) fn dot(a: &V3, b: &V3) -> Hd {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+    let mut r = &a[0] * &b[0];
+    r.mul_add(&a[1], &b[1]);
+    r.mul_add(&a[2], &b[2]);
+    r
+}
+
+/// `x y − z w`.
+fn mul_minus_mul(x: &Hd, y: &Hd, z: &Hd, w: &Hd) -> Hd {
+    let mut r = x * y;
+    r.mul_sub(z, w);
+    r
 }
 
 pub(crate) fn cross(a: &V3, b: &V3) -> V3 {
     [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
+        mul_minus_mul(&a[1], &b[2], &a[2], &b[1]),
+        mul_minus_mul(&a[2], &b[0], &a[0], &b[2]),
+        mul_minus_mul(&a[0], &b[1], &a[1], &b[0]),
     ]
 }
 
 pub(crate) fn add(a: &V3, b: &V3) -> V3 {
-    [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
+    [&a[0] + &b[0], &a[1] + &b[1], &a[2] + &b[2]]
 }
 
 pub(crate) fn scale(a: &V3, s: Hd) -> V3 {
-    [a[0] * s, a[1] * s, a[2] * s]
+    [&a[0] * &s, &a[1] * &s, &a[2] * &s]
 }
 
 pub(crate) fn scale_f(a: &V3, s: f64) -> V3 {
@@ -172,15 +237,53 @@ pub(crate) fn scale_f(a: &V3, s: f64) -> V3 {
 /// Cross product of a variable vector with a constant vector.
 pub(crate) fn cross_c(a: &V3, b: &[f64; 3]) -> V3 {
     [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
+        a[1].scale(b[2]) - a[2].scale(b[1]),
+        a[2].scale(b[0]) - a[0].scale(b[2]),
+        a[0].scale(b[1]) - a[1].scale(b[0]),
     ]
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn packed_hessian_indices_are_the_pairs() {
+        for (k, &(i, j)) in PAIRS.iter().enumerate() {
+            let mut x = Hd::cst(0.0);
+            x.h[k] = 1.0 + k as f64;
+            assert_eq!(x.hess(i, j), 1.0 + k as f64);
+            assert_eq!(x.hess(j, i), 1.0 + k as f64);
+        }
+        assert_eq!(PAIRS[H - 1], (N - 1, N - 1));
+    }
+
+    #[test]
+    fn in_place_products_are_the_operators() {
+        let vars: Vec<Hd> = (0..N).map(|k| Hd::var(0.3 + 0.1 * k as f64, k)).collect();
+        let a = (vars[0] * vars[4] + vars[2]).sqrt() * vars[7];
+        let b = (vars[1] * vars[8] + 2.0).recip() - vars[3] * vars[5];
+        let c = a * b + vars[6];
+        let mut add = c;
+        add.mul_add(&a, &b);
+        let mut sub = c;
+        sub.mul_sub(&a, &b);
+        let same = |x: &Hd, y: &Hd| {
+            x.v.to_bits() == y.v.to_bits()
+                && x.g
+                    .iter()
+                    .zip(&y.g)
+                    .all(|(p, q)| p.to_bits() == q.to_bits())
+                && x.h
+                    .iter()
+                    .zip(&y.h)
+                    .all(|(p, q)| p.to_bits() == q.to_bits())
+        };
+        assert!(same(&add, &(c + a * b)));
+        assert!(same(&sub, &(c - a * b)));
+        assert!(same(&(c - a), &(c + (-a))));
+        assert!(add.h.iter().any(|&v| v != 0.0));
+    }
 
     #[test]
     fn derivatives_of_a_known_function() {
