@@ -136,7 +136,7 @@ impl Add<&Hd> for &Hd {
 impl Add for Hd {
     type Output = Hd;
     fn add(self, o: Hd) -> Hd {
-        &self + &o
+        <&Hd as Add<&Hd>>::add(&self, &o)
     }
 }
 
@@ -155,7 +155,7 @@ impl Sub<&Hd> for &Hd {
 impl Sub for Hd {
     type Output = Hd;
     fn sub(self, o: Hd) -> Hd {
-        &self - &o
+        <&Hd as Sub<&Hd>>::sub(&self, &o)
     }
 }
 
@@ -193,7 +193,7 @@ impl Mul<&Hd> for &Hd {
 impl Mul for Hd {
     type Output = Hd;
     fn mul(self, o: Hd) -> Hd {
-        &self * &o
+        <&Hd as Mul<&Hd>>::mul(&self, &o)
     }
 }
 
