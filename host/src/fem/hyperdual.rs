@@ -6,6 +6,9 @@
 //! differences). Used by the beam element to obtain internal forces and tangent stiffness from
 //! the element energy.
 
+// `&a * &b` is deliberate: `Hd` is `Copy` but 440 bytes, and the by-value operators copy it.
+#![allow(clippy::op_ref)]
+
 use std::ops::{Add, Mul, Neg, Sub};
 
 /// Number of independent variables of the beam element energy: relative translation (3) and
