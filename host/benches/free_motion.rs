@@ -10,7 +10,8 @@
 //!   `…_f32`: with the single-precision factor);
 //! - `polar/rotations_<n>_nodes`: the element rotations (polar decompositions of the deformation
 //!   gradients) of the whole gel, eight elements per SIMD pass; `…_scalar`: one by one, the same
-//!   rotations bit for bit;
+//!   rotations bit for bit; `polar/update_and_forces_<n>_nodes`: the rotations and the internal
+//!   forces of every element (the gel's per-step element pass);
 //! - `free_motion_needle_40_beams`: one full needle step (forces, Hessians, factor, solve).
 //!
 //! Run: `cargo bench -p needle-host --bench free_motion` (add `-- --quick` for a fast pass).
@@ -173,6 +174,17 @@ fn bench_polar(c: &mut Criterion) {
                 for (f, r) in black_box(&f).iter().zip(r.iter_mut()) {
                     *r = rotation_from_deformation(f);
                 }
+            })
+        });
+        let mut tetra = tetra.clone();
+        let mut forces = vec![0.0; 3 * model.positions().len()];
+        group.bench_function(format!("update_and_forces_{target}_nodes"), |b| {
+            b.iter(|| {
+                forces.fill(0.0);
+                tetra.update_rotations_and_add_internal_forces(
+                    black_box(model.positions()),
+                    &mut forces,
+                )
             })
         });
     }
