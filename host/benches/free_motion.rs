@@ -15,40 +15,22 @@
 //! - `free_motion_needle_40_beams`: one full needle step (forces, Hessians, factor, solve).
 //!
 //! Run: `cargo bench -p needle-host --bench free_motion` (add `-- --quick` for a fast pass).
+//! Instruction counts of the element pass and the needle step: `element_instructions.rs`.
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use nalgebra::{Isometry3, Vector3};
-use needle_host::fem::Elasticity;
-use needle_host::fem::beam::BeamSection;
 use needle_host::fem::tetra::{rotation_from_deformation, rotations_from_deformations};
-use needle_host::free_motion::{FillOrdering, GelModel, GelParams, NeedleModel, NeedleParams};
+use needle_host::free_motion::{FillOrdering, GelModel, GelParams};
 use needle_host::linalg::Precision;
-use needle_host::mesh::box_mesh;
 use std::hint::black_box;
 
-/// Deterministic pseudo-random numbers in [−1, 1) (64-bit LCG, fixed seed).
-struct Lcg(u64);
-
-impl Lcg {
-    fn next(&mut self) -> f64 {
-        self.0 = self
-            .0
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        ((self.0 >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
-    }
-}
+mod common;
 
 fn gel(target: usize) -> GelModel {
     gel_with(target, FillOrdering::NestedDissection, Precision::Double)
 }
 
 fn gel_with(target: usize, ordering: FillOrdering, precision: Precision) -> GelModel {
-    let mesh = box_mesh(
-        Vector3::new(260.0, -30.0, 0.0),
-        Vector3::new(340.0, 30.0, 60.0),
-        target,
-    );
+    let mesh = common::benchmark_box(target);
     let bottom = mesh.nodes_on_plane(2, 0.0, 1e-9);
     let params = GelParams {
         time_step: Some(0.01),
@@ -57,7 +39,7 @@ fn gel_with(target: usize, ordering: FillOrdering, precision: Precision) -> GelM
     };
     let mut model = GelModel::try_new_with_ordering(mesh, &bottom, &params, ordering)
         .expect("valid benchmark gel");
-    let mut rng = Lcg(0x5eed_0001 + target as u64);
+    let mut rng = common::Lcg(0x5eed_0001 + target as u64);
     // ±0.06 mm on ~5 mm cells: strains of ~1 %, the regime of the insertion benchmark.
     let dx: Vec<f64> = (0..model.dof_count()).map(|_| 0.06 * rng.next()).collect();
     model.apply_displacement(&dx).expect("finite displacement");
@@ -85,7 +67,7 @@ fn bench_gel(c: &mut Criterion) {
         group.bench_function(format!("factor_gel_{target}_nodes"), |b| {
             b.iter(|| model.factorize().expect("SPD"))
         });
-        let mut rng = Lcg(0xbeef + target as u64);
+        let mut rng = common::Lcg(0xbeef + target as u64);
         let rhs: Vec<f64> = (0..model.dof_count()).map(|_| rng.next()).collect();
         let mut x = rhs.clone();
         group.bench_function(format!("solve_gel_{target}_nodes"), |b| {
@@ -132,26 +114,7 @@ fn bench_gel(c: &mut Criterion) {
 }
 
 fn bench_needle(c: &mut Criterion) {
-    let section = BeamSection {
-        elasticity: Elasticity {
-            young_modulus: 200_000.0,
-            poisson_ratio: 0.3,
-        },
-        outer_diameter: 1.0,
-        inner_diameter: 0.0,
-        density: 7.85e-9,
-    };
-    let params = NeedleParams {
-        section,
-        time_step: Some(0.01),
-        refactor_every: 1,
-    };
-    let mut needle = NeedleModel::straight(&Isometry3::identity(), 150.0, 40, &[], &params)
-        .expect("valid needle");
-    let mut f = vec![0.0; needle.dof_count()];
-    let tip = needle.node_count() - 1;
-    f[6 * tip + 1] = 0.1;
-    needle.free_motion(&f).expect("SPD");
+    let (mut needle, f) = common::loaded_needle();
     c.bench_function("free_motion_needle_40_beams", |b| {
         b.iter(|| black_box(needle.free_motion(&f).expect("SPD")[0]))
     });
