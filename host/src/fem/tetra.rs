@@ -55,6 +55,19 @@ pub enum Kinematics {
     Linear,
 }
 
+/// The Newton fast path of [`rotation_from_deformation`] takes `F` when `det F` exceeds this
+/// fraction of `(|F|²/3)^(3/2)` (the determinant of `F`'s size as a pure stretch).
+const FAST_PATH_DET_RATIO: f64 = 1e-3;
+
+/// The polar iteration scales by `|det X|^(−1/3)` on its first step when `|det X − 1|` exceeds this.
+const POLAR_SCALING_THRESHOLD: f64 = 1e-2;
+
+/// The polar iteration has converged when a step changes no entry by more than this.
+const POLAR_STEP_TOLERANCE: f64 = 1e-8;
+
+/// Most polar iterations before the SVD path takes over.
+const POLAR_MAX_ITERATIONS: usize = 30;
+
 /// Rotation closest to the deformation gradient `f` (polar decomposition `F = R S`, `R = U Vᵀ`
 /// for the SVD `F = U Σ Vᵀ`). For well-shaped elements with `det F > 0` it is computed by the
 /// scaled Newton polar iteration (same factor, faster); otherwise through an SVD obtained from
@@ -73,7 +86,7 @@ pub fn rotation_from_deformation(f: &Matrix3<f64>) -> Matrix3<f64> {
     // (|F|²/3)^(3/2) without `powf` (a tenth of the step's element update went to it).
     let t = f.norm_squared() / 3.0;
     let scale3 = t * t.sqrt();
-    if f.determinant() > 1e-3 * scale3
+    if f.determinant() > FAST_PATH_DET_RATIO * scale3
         && let Some(r) = polar_newton(f)
     {
         return r;
@@ -88,13 +101,13 @@ pub fn rotation_from_deformation(f: &Matrix3<f64>) -> Matrix3<f64> {
 /// a step below 1e-8 leaves an error at round-off level.
 fn polar_newton(f: &Matrix3<f64>) -> Option<Matrix3<f64>> {
     let mut x = *f;
-    for k in 0..30 {
+    for k in 0..POLAR_MAX_ITERATIONS {
         let c = cofactor(&x);
         let det = x[(0, 0)] * c[(0, 0)] + x[(1, 0)] * c[(1, 0)] + x[(2, 0)] * c[(2, 0)];
         if !(det > 0.0) {
             return None;
         }
-        let g = if k == 0 && (det - 1.0).abs() > 1e-2 {
+        let g = if k == 0 && (det - 1.0).abs() > POLAR_SCALING_THRESHOLD {
             1.0 / det.cbrt()
         } else {
             1.0
@@ -102,7 +115,7 @@ fn polar_newton(f: &Matrix3<f64>) -> Option<Matrix3<f64>> {
         let next = x * (0.5 * g) + c * (0.5 / (g * det));
         let diff = (next - x).abs().max();
         x = next;
-        if diff <= 1e-8 {
+        if diff <= POLAR_STEP_TOLERANCE {
             return Some(x);
         }
     }
@@ -125,34 +138,38 @@ pub const POLAR_LANES: usize = 8;
 /// If `f` and `out` differ in length.
 pub fn rotations_from_deformations(f: &[Matrix3<f64>], out: &mut [Matrix3<f64>]) {
     assert_eq!(f.len(), out.len(), "one rotation per deformation gradient");
-    for (f, out) in f.chunks(POLAR_LANES).zip(out.chunks_mut(POLAR_LANES)) {
-        #[cfg(target_arch = "x86_64")]
-        {
-            if std::arch::is_x86_feature_detected!("avx512f") {
-                // SAFETY: AVX-512F support was checked at run time.
-                unsafe { polar_lanes_avx512(f, out) };
-                continue;
-            }
-            if std::arch::is_x86_feature_detected!("avx2") {
-                // SAFETY: AVX2 support was checked at run time.
-                unsafe { polar_lanes_avx2(f, out) };
-                continue;
-            }
+    #[cfg(target_arch = "x86_64")]
+    {
+        if std::arch::is_x86_feature_detected!("avx512f") {
+            // SAFETY: AVX-512F support was checked at run time.
+            return unsafe { polar_chunks_avx512(f, out) };
         }
-        polar_lanes(f, out);
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: AVX2 support was checked at run time.
+            return unsafe { polar_chunks_avx2(f, out) };
+        }
     }
+    polar_chunks(f, out);
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f")]
-unsafe fn polar_lanes_avx512(f: &[Matrix3<f64>], out: &mut [Matrix3<f64>]) {
-    polar_lanes(f, out);
+unsafe fn polar_chunks_avx512(f: &[Matrix3<f64>], out: &mut [Matrix3<f64>]) {
+    polar_chunks(f, out);
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-unsafe fn polar_lanes_avx2(f: &[Matrix3<f64>], out: &mut [Matrix3<f64>]) {
-    polar_lanes(f, out);
+unsafe fn polar_chunks_avx2(f: &[Matrix3<f64>], out: &mut [Matrix3<f64>]) {
+    polar_chunks(f, out);
+}
+
+/// [`polar_lanes`] over consecutive chunks of [`POLAR_LANES`] gradients.
+#[inline(always)]
+fn polar_chunks(f: &[Matrix3<f64>], out: &mut [Matrix3<f64>]) {
+    for (f, out) in f.chunks(POLAR_LANES).zip(out.chunks_mut(POLAR_LANES)) {
+        polar_lanes(f, out);
+    }
 }
 
 /// [`rotation_from_deformation`] of at most [`POLAR_LANES`] gradients, [`polar_newton`]'s
@@ -177,7 +194,7 @@ fn polar_lanes(f: &[Matrix3<f64>], out: &mut [Matrix3<f64>]) {
     let mut pending = [false; L];
     for l in 0..L {
         let scale3 = t[l] * t[l].sqrt();
-        pending[l] = l < f.len() && det0[l] > 1e-3 * scale3;
+        pending[l] = l < f.len() && det0[l] > FAST_PATH_DET_RATIO * scale3;
     }
     for (l, fl) in f.iter().enumerate() {
         if pending[l] {
@@ -187,7 +204,7 @@ fn polar_lanes(f: &[Matrix3<f64>], out: &mut [Matrix3<f64>]) {
         }
     }
     let mut newton = [false; L];
-    for k in 0..30 {
+    for k in 0..POLAR_MAX_ITERATIONS {
         if !pending.contains(&true) {
             break;
         }
@@ -217,7 +234,7 @@ fn polar_lanes(f: &[Matrix3<f64>], out: &mut [Matrix3<f64>]) {
         let mut g = [1.0f64; L];
         if k == 0 {
             for l in 0..L {
-                if pending[l] && (det[l] - 1.0).abs() > 1e-2 {
+                if pending[l] && (det[l] - 1.0).abs() > POLAR_SCALING_THRESHOLD {
                     g[l] = 1.0 / det[l].cbrt();
                 }
             }
@@ -251,7 +268,7 @@ fn polar_lanes(f: &[Matrix3<f64>], out: &mut [Matrix3<f64>]) {
         // the next iteration. A lane's result is taken when it converges.
         x = next;
         for l in 0..L {
-            if pending[l] && diff[l] <= 1e-8 {
+            if pending[l] && diff[l] <= POLAR_STEP_TOLERANCE {
                 pending[l] = false;
                 newton[l] = true;
                 out[l] = Matrix3::from_fn(|i, j| x[3 * j + i][l]);
@@ -600,12 +617,28 @@ impl CorotationalTetra {
         }
         let mut f = [Matrix3::zeros(); POLAR_LANES];
         for e0 in (0..self.tets.len()).step_by(POLAR_LANES) {
-            let n = POLAR_LANES.min(self.tets.len() - e0);
-            for (i, fi) in f[..n].iter_mut().enumerate() {
-                *fi = self.deformation_gradient(e0 + i, x);
-            }
+            self.update_chunk(e0, x, &mut f, true);
+        }
+    }
+
+    /// The deformation gradients of elements `e0..e0 + n` (`n` = [`POLAR_LANES`], or fewer at
+    /// the end) into `f[..n]` and, when `rotate`, their rotations, computed together
+    /// ([`rotations_from_deformations`]). Returns `n`.
+    fn update_chunk(
+        &mut self,
+        e0: usize,
+        x: &[Vector3<f64>],
+        f: &mut [Matrix3<f64>; POLAR_LANES],
+        rotate: bool,
+    ) -> usize {
+        let n = POLAR_LANES.min(self.tets.len() - e0);
+        for (i, fi) in f[..n].iter_mut().enumerate() {
+            *fi = self.deformation_gradient(e0 + i, x);
+        }
+        if rotate {
             rotations_from_deformations(&f[..n], &mut self.rotations[e0..e0 + n]);
         }
+        n
     }
 
     /// Internal force of element `e` at positions `x` with the current rotation, node-major [N].
@@ -641,13 +674,7 @@ impl CorotationalTetra {
         let corotational = self.kinematics == Kinematics::Corotational;
         let mut fg = [Matrix3::zeros(); POLAR_LANES];
         for e0 in (0..self.tets.len()).step_by(POLAR_LANES) {
-            let n = POLAR_LANES.min(self.tets.len() - e0);
-            for (i, fi) in fg[..n].iter_mut().enumerate() {
-                *fi = self.deformation_gradient(e0 + i, x);
-            }
-            if corotational {
-                rotations_from_deformations(&fg[..n], &mut self.rotations[e0..e0 + n]);
-            }
+            let n = self.update_chunk(e0, x, &mut fg, corotational);
             for (i, fg) in fg[..n].iter().enumerate() {
                 let e = e0 + i;
                 let r = &self.rotations[e];
