@@ -1,12 +1,14 @@
 //! The whole inverse step (validate, factor, 8 constraint solves, Newton step) at m = 30, 120
 //! and the full capacity 192 on seeded random frames. The controller warm-starts from its previous λ, as in
-//! production where consecutive frames are close; the `_cold` variant resets it every step.
+//! production where consecutive frames are close; the `_cold` variant resets it every step; the
+//! `_drifting` variant steps two frames a control period apart in turn, so that every warm start
+//! (λ, the sensitivities) comes from the other frame.
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use std::hint::black_box;
 
 mod common;
-use common::{command, controller, frame};
+use common::{command, controller, drifting_frames, frame};
 
 fn bench(c: &mut Criterion) {
     for m in [30usize, 120, 192] {
@@ -30,6 +32,16 @@ fn bench(c: &mut Criterion) {
             b.iter(|| ctrl.step(black_box(&f), &mut cmd))
         });
         ctrl.params.active_set = true;
+        // Two frames a control period apart, in turn: every warm start one frame old.
+        let pair = drifting_frames(m, 11);
+        let mut ctrl = controller();
+        let mut k = 0usize;
+        c.bench_function(&format!("inverse_step_m{m}_drifting"), |b| {
+            b.iter(|| {
+                k += 1;
+                ctrl.step(black_box(&pair[k % 2]), &mut cmd)
+            })
+        });
     }
 }
 

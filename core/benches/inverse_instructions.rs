@@ -1,6 +1,7 @@
 //! Instruction counts (valgrind, through gungraun) of the inverse step at m = 30, 120 and the full
-//! capacity 192, cold (fresh controller; `_plain_gs`: without the active-set prediction) —
-//! deterministic, so regressions show as exact count changes. CI gates them against
+//! capacity 192, cold (fresh controller; `_plain_gs`: without the active-set prediction) and,
+//! `_drifting`, one frame after another a control period apart (the counted step starts from the
+//! previous step's λ and sensitivities, as in production) — deterministic, so regressions show as exact count changes. CI gates them against
 //! `core/benches/instructions_baseline.json`: `python3 tools/check_instructions.py` (needs
 //! valgrind and `gungraun-runner` 0.20.0; `--update` rewrites the baseline).
 
@@ -26,11 +27,22 @@ fn setup(m: usize, active_set: bool) -> State {
     }
 }
 
+/// A controller that has stepped the first of two frames a control period apart
+/// (`common::drifting_frames`), and the second frame, to be stepped.
+fn setup_drifting(m: usize) -> State {
+    let [first, frame] = common::drifting_frames(m, 11);
+    let (mut ctrl, mut cmd) = (common::controller(), common::command());
+    let _ = ctrl.step(&first, &mut cmd);
+    State { frame, cmd, ctrl }
+}
+
 #[library_benchmark]
 #[bench::inverse_step_m30(args = (30, true), setup = setup)]
 #[bench::inverse_step_m120(args = (120, true), setup = setup)]
 #[bench::inverse_step_m120_plain_gs(args = (120, false), setup = setup)]
 #[bench::inverse_step_m192(args = (192, true), setup = setup)]
+#[bench::inverse_step_m120_drifting(args = (120,), setup = setup_drifting)]
+#[bench::inverse_step_m192_drifting(args = (192,), setup = setup_drifting)]
 fn inverse_step(mut s: State) -> SolverReport {
     let rep = s.ctrl.step(black_box(&s.frame), &mut s.cmd);
     black_box(rep.unwrap_or_default())

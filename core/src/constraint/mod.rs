@@ -37,7 +37,7 @@ mod project;
 mod sweep;
 
 pub use active_set::ActiveSet;
-pub(crate) use sweep::GsBatch;
+pub(crate) use sweep::{BatchStart, GsBatch};
 
 /// Tuning of one constraint solve.
 #[derive(Clone, Copy, Debug, PartialEq)]

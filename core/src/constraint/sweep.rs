@@ -174,18 +174,16 @@ impl<const M: usize> BlockGs<M> {
         groups.sweep::<1>(w, lambda, res, &[0], omega)[0]
     }
 
-    /// `count ≤ K` solves that start from the same `lambda0`, each with its own `δ`
-    /// (`batch.delta[k]`, rows `0..m`), run in lock step: each sweep visits the groups once and
-    /// updates every unfinished solve at each, so the rows of `W` a group reads come from
-    /// memory once for all of them (from the cache for the others). Each solve does exactly the
-    /// operations of [`Self::solve_from`] (the same λ, sweep count and report) and stops at its
-    /// own convergence; `product = W lambda0` ([`Self::product`]). The results are in
-    /// `batch.lambda[k]`.
+    /// `count ≤ K` solves, each with its own `δ` (`batch.delta[k]`, rows `0..m`), run in lock
+    /// step: each sweep visits the groups once and updates every unfinished solve at each, so the
+    /// rows of `W` a group reads come from memory once for all of them (from the cache for the
+    /// others). Each solve does exactly the operations of [`Self::solve_from`] from its start
+    /// (the same λ, sweep count and report) and stops at its own convergence. Where they start:
+    /// [`BatchStart`]. The results are in `batch.lambda[k]`.
     pub(crate) fn solve_batch<const K: usize>(
         &mut self,
         w: &[[f64; M]; M],
-        lambda0: &[f64; M],
-        product: &[f64; M],
+        start: BatchStart<'_, M>,
         batch: &mut GsBatch<M, K>,
         count: usize,
         params: &GsParams,
@@ -198,32 +196,57 @@ impl<const M: usize> BlockGs<M> {
             }
             return reports;
         }
-        let mut start = [0.0; M];
-        let mut cleaned = false;
-        for i in 0..m {
-            start[i] = if lambda0[i].is_finite() {
-                lambda0[i]
-            } else {
-                cleaned = true;
-                0.0
-            };
-        }
+        // Each solve's start into `batch.lambda[k]` and its residual `W λ − δ` into
+        // `batch.res[k]`, as `solve_from` would: non-finite entries zeroed, the product then
+        // computed rather than taken.
         let mut own = [0.0; M];
-        let product = if cleaned {
-            self.product(w, &start, &mut own);
-            &own
-        } else {
-            product
+        let shared = match start {
+            BatchStart::Shared { lambda0, product } => {
+                let mut cleaned = false;
+                for i in 0..m {
+                    own[i] = if lambda0[i].is_finite() {
+                        lambda0[i]
+                    } else {
+                        cleaned = true;
+                        0.0
+                    };
+                }
+                for k in 0..count {
+                    batch.lambda[k][..m].copy_from_slice(&own[..m]);
+                }
+                let mut product = *product;
+                if cleaned {
+                    self.product(w, &own, &mut product);
+                }
+                Some(product)
+            }
+            BatchStart::Own => None,
         };
         let mut scale = [0.0; K];
         let mut active = [false; K];
         for k in 0..count {
             let (delta, lambda, res) = (&batch.delta[k], &mut batch.lambda[k], &mut batch.res[k]);
             let mut sc = max_abs(&delta[..m]);
+            match &shared {
+                Some(product) => {
+                    for i in 0..m {
+                        res[i] = product[i] - delta[i];
+                    }
+                }
+                None => {
+                    for x in &mut lambda[..m] {
+                        if !x.is_finite() {
+                            *x = 0.0;
+                        }
+                    }
+                    product_rows(w, lambda, m, res);
+                    for i in 0..m {
+                        res[i] -= delta[i];
+                    }
+                }
+            }
             for i in 0..m {
-                lambda[i] = start[i];
-                sc = sc.max(libm::fabs(self.diag[i] * start[i]));
-                res[i] = product[i] - delta[i];
+                sc = sc.max(libm::fabs(self.diag[i] * lambda[i]));
             }
             if sc > 0.0 {
                 active[k] = true;
@@ -558,6 +581,20 @@ fn finite_change(change: f64) -> f64 {
     }
 }
 
+/// Where the solves of [`BlockGs::solve_batch`] start.
+#[derive(Clone, Copy, Debug)]
+pub(crate) enum BatchStart<'a, const M: usize> {
+    /// Every solve from `lambda0`, given its product `W lambda0` ([`BlockGs::product`]), which
+    /// saves the `m²` pass of each solve's initial residual (ignored when `lambda0` has a
+    /// non-finite entry).
+    Shared {
+        lambda0: &'a [f64; M],
+        product: &'a [f64; M],
+    },
+    /// Each solve from its own `batch.lambda[k]`, set by the caller (rows `0..m`).
+    Own,
+}
+
 /// The iterates of `K` solves run together by [`BlockGs::solve_batch`]: each one's `δ` (filled
 /// by the caller), its λ and its residual. `3 K M` values: keep it inside an owning struct.
 #[derive(Clone, Debug)]
@@ -800,6 +837,18 @@ mod tests {
     /// that the solves stop at different sweeps (the batch's active set shrinks through 3-, 2-
     /// and 1-solve passes) and some hit the sweep cap.
     fn batch_matches_alone<const K: usize>(m: usize, seed: u64, with_contact: bool) {
+        batch_matches_alone_from::<K>(m, seed, with_contact, false);
+        batch_matches_alone_from::<K>(m, seed, with_contact, true);
+    }
+
+    /// As [`batch_matches_alone`], every solve from the same start or (`own`) each from its
+    /// own, one of them with a non-finite entry.
+    fn batch_matches_alone_from<const K: usize>(
+        m: usize,
+        seed: u64,
+        with_contact: bool,
+        own: bool,
+    ) {
         const M: usize = 48;
         let q = [0.1, 0.3, 2.0, 0.0, 0.5, 0.0];
         let mut frame = ComplianceFrame::<M>::new_boxed();
@@ -826,17 +875,30 @@ mod tests {
                 batch.delta[k][i] = frame.delta_free[i] * scale + 0.01 * (k as f64 - 1.0);
             }
         }
-        let reports = gs.solve_batch(&frame.w, &lambda0, &product, &mut batch, K, &params);
+        let mut starts = [lambda0; K];
+        if own {
+            for (k, start) in starts.iter_mut().enumerate() {
+                for (i, x) in start[..rows].iter_mut().enumerate() {
+                    *x *= 1.0 + 0.3 * k as f64 - 0.01 * i as f64;
+                }
+            }
+            starts[K - 1][rows / 2] = f64::NAN;
+            batch.lambda = starts;
+        }
+        let start = if own {
+            BatchStart::Own
+        } else {
+            BatchStart::Shared {
+                lambda0: &lambda0,
+                product: &product,
+            }
+        };
+        let reports = gs.solve_batch(&frame.w, start, &mut batch, K, &params);
         let mut sweeps = [0u32; K];
         for k in 0..K {
-            let mut lambda = lambda0;
-            let alone = gs.solve_from(
-                &frame.w,
-                &batch.delta[k],
-                &mut lambda,
-                Some(&product),
-                &params,
-            );
+            let mut lambda = starts[k];
+            let given = (!own).then_some(&product);
+            let alone = gs.solve_from(&frame.w, &batch.delta[k], &mut lambda, given, &params);
             assert_eq!(reports[k], alone, "report of solve {k}");
             for i in 0..rows {
                 assert_eq!(
@@ -847,7 +909,7 @@ mod tests {
             }
             sweeps[k] = alone.iterations;
         }
-        std::println!("K = {K}, m = {rows}: sweeps {sweeps:?}");
+        std::println!("K = {K}, m = {rows}, own starts {own}: sweeps {sweeps:?}");
     }
 
     #[test]

@@ -29,7 +29,9 @@
 //!    singular in the benchmark pose): `ε² = ε_min² + (1 − (σ/σ₀)²) ε_max²` for `σ < σ₀`;
 //! 6. scale `Δq` uniformly so that `|Δq_i| ≤ v_max,i · dt` (keeps the Newton direction), then clamp
 //!    `q + Δq` into the joint limits; both are reported as saturation flags;
-//! 7. final solve at `q + Δq` (started from the same prediction) → the `λ` the host applies.
+//! 7. final solve at `q + Δq` (started from the same prediction or, without the active-set
+//!    factor, from `λ_q + Σ Δq_i ∂λ/∂q_i`, the sensitivities step 4's columns give; the next
+//!    step's columns start from them too: `sensitivity.rs`) → the `λ` the host applies.
 //!
 //! Steps 5 and 6 are the paper's update (`InverseParams::method = StepMethod::Paper`). The default,
 //! [`StepMethod::Qp`], replaces them by one small quadratic program (`qp_step.rs`): the tip error
@@ -49,6 +51,7 @@ mod error;
 mod objective;
 mod params;
 mod qp_step;
+mod sensitivity;
 mod solves;
 mod step;
 #[cfg(test)]
@@ -64,6 +67,7 @@ pub use step::{MAX_BACKTRACKS, MAX_HELD_HALVINGS, MAX_REPLANS, SUFFICIENT_DECREA
 use crate::constraint::{ActiveSet, BlockGs, GsBatch};
 use crate::kinematics::Robot;
 use crate::reduce::BaseElimination;
+use sensitivity::Sensitivity;
 use solves::Target;
 
 /// The inverse controller: owns the robot, the tuning and every scratch buffer of a step (block
@@ -103,6 +107,9 @@ pub struct Controller<const M: usize, const N: usize = 6> {
     start_product: [f64; M],
     /// Whether `start_product` belongs to this step's `W'` and `λ_q`.
     start_product_ok: bool,
+    /// `∂λ/∂q_i` of the last Jacobian: where the final solves and the next step's columns
+    /// start.
+    sens: Sensitivity<M, N>,
     /// The last step, when it held the joints ([`InverseParams::resume_held`]).
     held: Held<N>,
 }
@@ -180,6 +187,7 @@ crate::zeroed::impl_zeroable!(Controller<const M, const N> {
     columns,
     start_product,
     start_product_ok,
+    sens,
     held,
 });
 
@@ -208,6 +216,7 @@ impl<const M: usize, const N: usize> Controller<M, N> {
             columns: GsBatch::new(),
             start_product: [0.0; M],
             start_product_ok: false,
+            sens: Sensitivity::new(),
             held: Held::NONE,
         }
     }
@@ -264,6 +273,7 @@ impl<const M: usize, const N: usize> Controller<M, N> {
     /// held the joints.
     pub fn reset_warm_start(&mut self) {
         self.lambda.prev_rows = 0;
+        self.sens.clear();
         self.held = Held::NONE;
     }
 }

@@ -73,6 +73,12 @@ pub struct InverseParams {
     /// prediction (default true; see [`ActiveSet`]). Gauss-Seidel still runs every solve to
     /// `gs.tolerance`, so this changes the cost, not the answer.
     pub active_set: bool,
+    /// Start solves from the sensitivities `∂λ/∂q_i` the Jacobian's forward differences give
+    /// (default true; see `inverse/sensitivity.rs`): the final solve at `q + Δq` (and each
+    /// candidate the step confirms) from `λ_q + Σ Δq_i ∂λ/∂q_i`, the next step's Jacobian
+    /// columns from `λ_q + δq ∂λ/∂q_i`. Every solve still runs to its tolerance, so this
+    /// changes the cost, and the answers only within that tolerance.
+    pub sensitivity_start: bool,
     /// Tolerance of the first, loose Gauss-Seidel pass that finds the active set (default 1e-5).
     pub presolve_tolerance: f64,
     /// Eliminate the 6 base rows exactly before Gauss-Seidel (default true; see
@@ -160,6 +166,7 @@ crate::zeroed::impl_zeroable!(InverseParams {
     gs,
     warm_start,
     active_set,
+    sensitivity_start,
     presolve_tolerance,
     eliminate_base,
     max_base_step,
@@ -195,6 +202,7 @@ impl Default for InverseParams {
             },
             warm_start: true,
             active_set: true,
+            sensitivity_start: true,
             eliminate_base: true,
             max_base_step: f64::INFINITY,
             jacobian: JacobianMode::Hybrid,

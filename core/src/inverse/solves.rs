@@ -7,9 +7,14 @@
 //! active set of the base solve ([`ActiveSet`]) predicts how the solution follows it,
 //! `λ ≈ λ_q + Z (δ_b(q') − δ_b(q))`, which starts the perturbed solves next to their answer and
 //! is the whole "solve" of a linearised Jacobian column.
+//!
+//! Without that factor (the base rows eliminated, the default), the Jacobian's own forward
+//! differences give `∂λ/∂q_i` ([`super::sensitivity`]): the final solve at `q + Δq` starts from
+//! `λ_q + Σ Δq_i ∂λ/∂q_i`, the next step's columns from `λ_q + δq ∂λ/∂q_i`. A solve so started
+//! that does not converge is done again from `λ_q`.
 
 use super::{Controller, StepError};
-use crate::constraint::{ActiveSet, BlockGs, GsParams, SolveReport};
+use crate::constraint::{ActiveSet, BatchStart, BlockGs, GsParams, SolveReport};
 use crate::kinematics::{Kinematics, Pose};
 use crate::math::rotation_log;
 use crate::payload::{ComplianceFrame, ValidationError};
@@ -78,17 +83,52 @@ impl<const M: usize, const N: usize> Controller<M, N> {
         start: Start,
         tolerance: f64,
     ) -> (Pose, SolveReport) {
+        let (b, rep, from_sens) = self.solve_once(frame, q, target, start, tolerance, true);
+        if from_sens && !rep.converged {
+            // The sensitivities' start led Gauss-Seidel astray (statuses that cycle): the solve
+            // again from the prediction without them, its sweeps counted with the first's.
+            let (b, again, _) = self.solve_once(frame, q, target, start, tolerance, false);
+            let iterations = rep.iterations.saturating_add(again.iterations);
+            return (
+                b,
+                SolveReport {
+                    iterations,
+                    ..again
+                },
+            );
+        }
+        (b, rep)
+    }
+
+    /// [`Self::solve`] once; a `Start::Predicted` solve without a valid active set starts from
+    /// this step's sensitivities when `sensitivities` allows and they exist. Returns whether it
+    /// did.
+    fn solve_once(
+        &mut self,
+        frame: &ComplianceFrame<M, N>,
+        q: &[f64; N],
+        target: Target,
+        start: Start,
+        tolerance: f64,
+        sensitivities: bool,
+    ) -> (Pose, SolveReport, bool) {
         debug_assert!(!(target == Target::Base && start == Start::Predicted));
         let b = self.robot.tool_pose(q);
         let d = base_violation(&b, &frame.p_free, &frame.r_free);
-        // Without a valid active set the prediction is `λ_q` itself.
-        let from_base = target == Target::Work && start == Start::Predicted && !self.set_valid;
+        // Without a valid active set the prediction is this step's sensitivities' or, without
+        // those, `λ_q` itself (whose product `W' λ_q` the reduced solve then reuses).
+        let predicted = start == Start::Predicted;
+        let from_sens = predicted
+            && sensitivities
+            && !self.set_valid
+            && self.predict_from_sensitivity(frame, q);
+        let from_base = target == Target::Work && predicted && !self.set_valid && !from_sens;
         if target == Target::Base {
             self.delta_base = d;
             self.set_valid = false;
             self.start_product_ok = false;
         }
-        if start == Start::Predicted {
+        if predicted && !from_sens {
             self.predict(frame, &d);
         }
         let gs = GsParams {
@@ -106,7 +146,7 @@ impl<const M: usize, const N: usize> Controller<M, N> {
                     .solve(&frame.w, &self.delta, self.lambda.of(target), &gs),
             }
         };
-        (b, rep)
+        (b, rep, from_sens)
     }
 
     /// `λ_q` on the full problem through its active set: a loose Gauss-Seidel pass finds which
@@ -239,11 +279,13 @@ impl<const M: usize, const N: usize> Controller<M, N> {
         }
     }
 
-    /// The solves of the Jacobian's columns at joints `qs[i]`, started from `λ_q`, to
-    /// `tolerance`, run together on the reduced problem ([`BlockGs::solve_batch`]: each one the
-    /// same operations and the same result as alone, the rows of `W'` read once a sweep for
-    /// all). Returns the tool poses, the base violations and the reports of the first
-    /// `POLISH_AFTER` sweeps, to be finished column by column by [`Self::finish_column`]; `None`
+    /// The solves of the Jacobian's columns at joints `qs[i]`, started from the previous step's
+    /// sensitivities when they fit ([`Self::column_starts`]), else from `λ_q`, to `tolerance`,
+    /// run together on the reduced problem ([`BlockGs::solve_batch`]: each one the same
+    /// operations and the same result as alone, the rows of `W'` read once a sweep for all).
+    /// Returns the tool poses, the base violations, the reports of the first `POLISH_AFTER`
+    /// sweeps, to be finished column by column by [`Self::finish_column`], and whether the
+    /// sensitivities started them; `None`
     /// when the solves do not start from `λ_q` or the base rows are not eliminated (then each
     /// column is its own solve).
     #[allow(clippy::type_complexity)]
@@ -252,7 +294,7 @@ impl<const M: usize, const N: usize> Controller<M, N> {
         frame: &ComplianceFrame<M, N>,
         qs: &[[f64; N]; N],
         tolerance: f64,
-    ) -> Option<([Pose; N], [[f64; 6]; N], [SolveReport; N])> {
+    ) -> Option<([Pose; N], [[f64; 6]; N], [SolveReport; N], bool)> {
         let n = self.red.rows();
         if !self.params.eliminate_base || self.set_valid || n == 0 {
             return None;
@@ -263,23 +305,51 @@ impl<const M: usize, const N: usize> Controller<M, N> {
         for (d, delta) in ds.iter().zip(self.columns.delta.iter_mut()) {
             self.red.reduce_delta_into(frame, d, delta);
         }
-        self.update_start_product();
-        let mut lq = [0.0; M];
-        lq[..n].copy_from_slice(&self.lambda.base[6..6 + n]);
         let first = GsParams {
             tolerance,
             max_iterations: self.params.gs.max_iterations.min(POLISH_AFTER),
             ..self.params.gs
         };
-        let reports = self.gs.solve_batch(
-            &self.red.w,
-            &lq,
-            &self.start_product,
-            &mut self.columns,
-            N,
-            &first,
-        );
-        Some((poses, ds, reports))
+        // From the previous step's sensitivities when they fit this frame, else all from `λ_q`.
+        let from_sens = self.column_starts(frame);
+        let reports = if from_sens {
+            self.gs
+                .solve_batch(&self.red.w, BatchStart::Own, &mut self.columns, N, &first)
+        } else {
+            self.update_start_product();
+            let mut lq = [0.0; M];
+            lq[..n].copy_from_slice(&self.lambda.base[6..6 + n]);
+            let start = BatchStart::Shared {
+                lambda0: &lq,
+                product: &self.start_product,
+            };
+            self.gs
+                .solve_batch(&self.red.w, start, &mut self.columns, N, &first)
+        };
+        Some((poses, ds, reports, from_sens))
+    }
+
+    /// The starts of the column solves, `λ_q + δq ∂λ/∂q_i` from the previous step's
+    /// sensitivities, into the reduced rows of `columns.lambda[i]`; `false` (the columns then
+    /// start from `λ_q`) when there are none for a frame of this many rows or one start is out of
+    /// the problem's scale.
+    fn column_starts(&mut self, frame: &ComplianceFrame<M, N>) -> bool {
+        let (m, n) = (frame.rows(), self.red.rows());
+        let scale = self.problem_scale(frame);
+        let w = &frame.w;
+        for i in 0..N {
+            let mut dq = [0.0; N];
+            dq[i] = self.params.joint_step;
+            let mut start = [0.0; M];
+            if !self
+                .sens
+                .predict(&self.lambda.base, &dq, m, |r| w[r][r], scale, &mut start)
+            {
+                return false;
+            }
+            self.columns.lambda[i][..n].copy_from_slice(&start[6..6 + n]);
+        }
+        true
     }
 
     /// Column `i` of [`Self::solve_columns`] (base violation `d`, report `rep`) finished as
@@ -345,6 +415,37 @@ impl<const M: usize, const N: usize> Controller<M, N> {
             &self.gs
         };
         full.predict_base_change(&self.set, &self.lambda.base, &dd, &mut self.lambda.work);
+    }
+
+    /// `λ_q + Σ_i Δq_i ∂λ/∂q_i` for `Δq = q − q_frame` into `lambda.work`, from this step's
+    /// Jacobian ([`Sensitivity`](super::sensitivity::Sensitivity)); `false` (and nothing
+    /// written) when there is none or its start is out of the problem's scale.
+    fn predict_from_sensitivity(&mut self, frame: &ComplianceFrame<M, N>, q: &[f64; N]) -> bool {
+        if !self.sens.is_fresh() {
+            return false;
+        }
+        let m = frame.rows();
+        let dq: [f64; N] = core::array::from_fn(|i| q[i] - frame.q[i]);
+        let scale = self.problem_scale(frame);
+        let w = &frame.w;
+        self.sens.predict(
+            &self.lambda.base,
+            &dq,
+            m,
+            |i| w[i][i],
+            scale,
+            &mut self.lambda.work,
+        )
+    }
+
+    /// The scale a start must stay within: the larger of the frame's `‖δ‖∞` and `λ_q`'s force
+    /// scale `max |W_ii λ_i|`.
+    fn problem_scale(&self, frame: &ComplianceFrame<M, N>) -> f64 {
+        let m = frame.rows();
+        (0..m).fold(0.0_f64, |a, i| {
+            a.max(libm::fabs(frame.delta_free[i]))
+                .max(libm::fabs(frame.w[i][i] * self.lambda.base[i]))
+        })
     }
 
     /// The prediction at joints `q` into `lambda.work` (a linearised Jacobian column); returns

@@ -133,6 +133,10 @@ impl<const M: usize, const N: usize> Controller<M, N> {
         let m = frame.rows();
         self.delta[..m].copy_from_slice(&frame.delta_free[..m]);
         let warm = self.params.warm_start && self.warm_start_fits(frame, m);
+        self.sens.age();
+        if !warm || !self.params.sensitivity_start {
+            self.sens.clear();
+        }
         let l = &mut self.lambda;
         if warm {
             let n = l.prev_rows.min(m);
@@ -236,8 +240,19 @@ impl<const M: usize, const N: usize> Controller<M, N> {
             let bi = if linear {
                 report.solves += 1;
                 self.predict_at(frame, qi)
-            } else if let Some((poses, ds, reps)) = &columns {
-                let r = self.finish_column(frame, i, &ds[i], reps[i], tolerance);
+            } else if let Some((poses, ds, reps, from_sens)) = &columns {
+                let mut r = self.finish_column(frame, i, &ds[i], reps[i], tolerance);
+                if *from_sens && !r.converged {
+                    // As `solve` does: again from `λ_q` (this step's sensitivities are not
+                    // taken yet), the sweeps of both counted.
+                    let (_, again) =
+                        self.solve(frame, qi, Target::Work, Start::Predicted, tolerance);
+                    let iterations = r.iterations.saturating_add(again.iterations);
+                    r = SolveReport {
+                        iterations,
+                        ..again
+                    };
+                }
                 count_solve(report, &r);
                 poses[i]
             } else {
@@ -258,6 +273,12 @@ impl<const M: usize, const N: usize> Controller<M, N> {
                 clear.gradient[k][i] =
                     (frame.clearance(k, &self.lambda.work) - clear.value[k]) / p.joint_step;
             }
+            let m = frame.rows();
+            self.sens
+                .record(i, &self.lambda.work, &self.lambda.base, m, p.joint_step);
+        }
+        if self.params.sensitivity_start {
+            self.sens.complete(frame.rows());
         }
         (jac, clear)
     }
