@@ -9,8 +9,14 @@
 //! the active set with the statuses corrected between steps
 //! ([`BlockGs::solve_on_active_sets`]) solves both; Gauss-Seidel confirms the answer.
 //!
-//! File format (`tests/data/stiff_sliding_m*.txt`): `m`; one line per row group
-//! `kind start len mu r0`; the `m` rows of `W`; `δ` (base rows at the frame's joints).
+//! A third problem (`cycling_sliding_m18.txt`) is a Jacobian column of a `helix_half` frame (4
+//! sliding points, μ_n 0.1) with the iterate its active-set rounds started from in that run:
+//! from there the rounds cycled between two statuses of one axial row (tied with two others,
+//! then freed), every sliding point sticking being the solution.
+//!
+//! File format (`tests/data/*_sliding_m*.txt`): `m`; one line per row group
+//! `kind start len mu r0`; the `m` rows of `W`; `δ` (base rows at the column's joints);
+//! optionally the starting iterate.
 #![allow(clippy::expect_used, clippy::unwrap_used, clippy::panic)]
 
 use needle_core::{ActiveSet, BlockGs, GsParams, RowGroup};
@@ -22,6 +28,7 @@ struct Problem {
     groups: Vec<RowGroup>,
     w: Box<[[f64; M]; M]>,
     delta: [f64; M],
+    start: Option<[f64; M]>,
 }
 
 fn load(name: &str) -> Problem {
@@ -58,11 +65,20 @@ fn load(name: &str) -> Problem {
     }
     let mut delta = [0.0; M];
     delta[..m].copy_from_slice(&numbers());
+    // An optional last line: the iterate a solve started its active-set rounds from.
+    let start = lines.next().map(|line| {
+        let mut start = [0.0; M];
+        for (x, v) in start.iter_mut().zip(line.split_whitespace()) {
+            *x = v.parse().unwrap();
+        }
+        start
+    });
     Problem {
         m,
         groups,
         w,
         delta,
+        start,
     }
 }
 
@@ -165,4 +181,27 @@ fn stiff_sliding_points_solved_by_active_set_rounds_within_the_sweep_cap() {
         assert!(r2.converged, "{name}: not converged: {r2:?}");
         assert_solution(&p, &lambda, name, tolerance);
     }
+}
+
+#[test]
+fn cycling_axial_status_does_not_stop_the_active_set_rounds() {
+    let name = "cycling_sliding_m18.txt";
+    let p = load(name);
+    let mut gs = BlockGs::<M>::new();
+    gs.prepare(&p.w, p.m, &p.groups).unwrap();
+    let mut set = Box::new(ActiveSet::<M>::new());
+    let mut lambda = p.start.expect("a starting iterate");
+    // As the controller polishes a Jacobian column: its 12 rounds, then Gauss-Seidel for the
+    // 60 sweeps before the next polish. Before the fix the rounds ended on the set that asks for
+    // the larger correction and those sweeps did not converge (nor did the 400 of the cap).
+    gs.solve_on_active_sets(&p.w, &p.delta, &mut lambda, &mut set, 12);
+    let tolerance = 1e-5;
+    let gs_params = GsParams {
+        tolerance,
+        max_iterations: 60,
+        ..GS
+    };
+    let r = gs.solve(&p.w, &p.delta, &mut lambda, &gs_params);
+    assert!(r.converged, "{name}: {r:?}");
+    assert_solution(&p, &lambda, name, tolerance);
 }

@@ -102,6 +102,19 @@ impl<const M: usize> ActiveSet<M> {
     pub fn is_valid(&self) -> bool {
         self.valid
     }
+
+    /// A fingerprint of the last factorisation's statuses (which rows are free, which tied), to
+    /// tell two rounds' sets apart (FNV-1a over the row indices).
+    fn statuses(&self) -> u64 {
+        let free = self.rows[..self.n].iter();
+        let tied = self.tied[..self.n_tied].iter().map(|t| &t.row);
+        let mut h: u64 = 0xcbf2_9ce4_8422_2325 ^ self.n as u64;
+        for r in free.chain(core::iter::once(&u32::MAX)).chain(tied) {
+            h ^= u64::from(*r);
+            h = h.wrapping_mul(0x0000_0100_0000_01b3);
+        }
+        h
+    }
 }
 
 impl<const M: usize> BlockGs<M> {
@@ -312,35 +325,60 @@ impl<const M: usize> BlockGs<M> {
         set: &mut ActiveSet<M>,
         max_rounds: usize,
     ) -> bool {
+        // The statuses of the last two rounds, and the previous round's Newton iterate with the
+        // size of the correction it called for: to see a cycle of two and leave it.
+        let mut seen = [None; 2];
+        let mut previous = (f64::INFINITY, [0.0; M]);
         for round in 0..max_rounds {
             if !(self.factor_active_set(w, lambda, set)
                 && self.refine_on_active_set(w, delta, lambda, set))
             {
                 return false;
             }
+            let statuses = set.statuses();
             let n = set.n;
             let scale = max_abs(&lambda[..self.m]);
             let step = max_abs(&set.x[..n]);
+            let newton = *lambda;
             // All corrections at once converge fastest, but may cycle (every axial row tied,
             // then every one free, ...): from the fourth round, one at a time.
-            let changed = self.correct_statuses(w, delta, lambda, round >= 3);
-            if !changed && step <= 1e-12 * scale {
-                return true;
+            let Some(size) = self.correct_statuses(w, delta, lambda, round >= 3) else {
+                if step <= 1e-12 * scale {
+                    return true;
+                }
+                continue;
+            };
+            // Only one at a time: a cycle of all-at-once rounds is what one at a time breaks.
+            if round >= 5 && seen[0] == Some(statuses) {
+                // A cycle of two status sets, which one at a time cannot leave either: a row at
+                // the transition, e.g. an axial row whose slip runs the wrong way (slightly)
+                // when tied and whose force passes its bound when free. The Newton iterate of
+                // the set that calls for the smaller correction is the nearer answer; Gauss-
+                // Seidel confirms or repairs it.
+                *lambda = if size <= previous.0 {
+                    newton
+                } else {
+                    previous.1
+                };
+                return false;
             }
+            seen = [seen[1], Some(statuses)];
+            previous = (size, newton);
         }
         false
     }
 
     /// The status corrections of [`Self::solve_on_active_sets`] after a Newton step, all of
     /// them or (`single`) only the largest, measured as Gauss-Seidel measures a change
-    /// (`|W_ii Δλ_i|`, or the residual that calls for it); `true` when any status changed.
+    /// (`|W_ii Δλ_i|`, or the residual that calls for it); the largest correction's size when any
+    /// status changed.
     fn correct_statuses(
         &self,
         w: &[[f64; M]; M],
         delta: &[f64; M],
         lambda: &mut [f64; M],
         single: bool,
-    ) -> bool {
+    ) -> Option<f64> {
         let m = self.m;
         // A residual this small against the problem's scale is round-off, not a wrong status
         // (a row exactly on its bound with zero slip would otherwise flip at every round).
@@ -353,9 +391,7 @@ impl<const M: usize> BlockGs<M> {
                 largest = Some((size, k));
             }
         }
-        let Some((_, only)) = largest else {
-            return false;
-        };
+        let (size, only) = largest?;
         for (k, b) in self.blocks[..self.n_blocks].iter().enumerate() {
             if single && k != only {
                 continue;
@@ -373,7 +409,7 @@ impl<const M: usize> BlockGs<M> {
                 }
             }
         }
-        true
+        Some(size)
     }
 
     /// The status correction group `b` needs after a Newton step, with its size, if any: a
