@@ -514,7 +514,7 @@ fn held_step_is_not_repeated_on_an_unchanged_frame() {
 
 /// Starting the solves from the sensitivities (`InverseParams::sensitivity_start`) changes where
 /// they start, not what they converge to: over a sequence of frames a control period apart
-/// (two seeded frames in turn, the second with its violations moved by up to 2 % and its joints
+/// (two seeded frames in turn, the second with its violations moved by up to 1 % and its joints
 /// by 0.002 rad), the commanded joints and forces agree with the plain starts' to the solves'
 /// tolerance (measured: `Δq` within 1–6·10⁻⁵ of its size, the Jacobian solves' tolerance being
 /// 10⁻⁵), and the steps take fewer Gauss-Seidel sweeps once the first step has recorded
