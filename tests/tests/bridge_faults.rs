@@ -79,6 +79,9 @@ fn corrupted_frames_are_rejected_and_counted_never_used() {
     host.wait_command(seq, &mut cmd)
         .expect("answer to a valid frame");
     assert_eq!(cmd.frame_sequence, 0);
+    // The answer reaches the host inside the controller's tick, before its thread copies the
+    // counters out: wait for the copy rather than read it at once.
+    settle(&ctl, received);
     assert_eq!(ctl.now().0.frames_solved, 1);
 
     // 2. Corrupted frames, each rejected for its own reason.
