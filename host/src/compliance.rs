@@ -107,6 +107,36 @@ impl PointColumns {
         Ok(Self { data, n })
     }
 
+    /// The columns of several points with one call of `solve_many(rhs, 3 · maps.len())`: the
+    /// solver reads its matrix (for the gel, a sparse factor of tens of megabytes) once for all
+    /// the points rather than once per point, and each column is what [`Self::compute`] gives.
+    ///
+    /// # Errors
+    /// Whatever the solver returns.
+    pub fn compute_batch<E>(
+        maps: &[PointMap],
+        n: usize,
+        solve_many: impl FnOnce(&mut [f64], usize) -> Result<(), E>,
+    ) -> Result<Vec<Self>, E> {
+        let mut rhs = vec![0.0; 3 * n * maps.len()];
+        for (p, map) in maps.iter().enumerate() {
+            let cols = &mut rhs[3 * n * p..3 * n * (p + 1)];
+            for &(b, w) in map.used() {
+                for k in 0..3 {
+                    cols[k * n + b + k] += w;
+                }
+            }
+        }
+        solve_many(&mut rhs, 3 * maps.len())?;
+        Ok(rhs
+            .chunks_exact(3 * n)
+            .map(|data| Self {
+                data: data.to_vec(),
+                n,
+            })
+            .collect())
+    }
+
     /// Column `k` (the response to a unit force along axis `k` at the point).
     pub fn column(&self, k: usize) -> &[f64] {
         &self.data[k * self.n..(k + 1) * self.n]
