@@ -97,12 +97,7 @@ impl PointColumns {
         n: usize,
         solve_many: impl FnOnce(&mut [f64], usize) -> Result<(), E>,
     ) -> Result<Self, E> {
-        let mut data = vec![0.0; 3 * n];
-        for &(b, w) in map.used() {
-            for k in 0..3 {
-                data[k * n + b + k] += w;
-            }
-        }
+        let mut data = unit_loads(std::slice::from_ref(map), n);
         solve_many(&mut data, 3)?;
         Ok(Self { data, n })
     }
@@ -118,15 +113,7 @@ impl PointColumns {
         n: usize,
         solve_many: impl FnOnce(&mut [f64], usize) -> Result<(), E>,
     ) -> Result<Vec<Self>, E> {
-        let mut rhs = vec![0.0; 3 * n * maps.len()];
-        for (p, map) in maps.iter().enumerate() {
-            let cols = &mut rhs[3 * n * p..3 * n * (p + 1)];
-            for &(b, w) in map.used() {
-                for k in 0..3 {
-                    cols[k * n + b + k] += w;
-                }
-            }
-        }
+        let mut rhs = unit_loads(maps, n);
         solve_many(&mut rhs, 3 * maps.len())?;
         Ok(rhs
             .chunks_exact(3 * n)
@@ -162,6 +149,20 @@ impl PointColumns {
             }
         }
     }
+}
+
+/// The right-hand sides `Pᵀ` of `maps`, three column-major columns of length `n` per point, one
+/// point after the other.
+fn unit_loads(maps: &[PointMap], n: usize) -> Vec<f64> {
+    let mut rhs = vec![0.0; 3 * n * maps.len()];
+    for (cols, map) in rhs.chunks_exact_mut(3 * n).zip(maps) {
+        for &(b, w) in map.used() {
+            for k in 0..3 {
+                cols[k * n + b + k] += w;
+            }
+        }
+    }
+    rhs
 }
 
 #[cfg(test)]

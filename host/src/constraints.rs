@@ -63,7 +63,7 @@ impl PointStore {
         n: usize,
         solve_many: impl FnMut(&mut [f64], usize) -> Result<(), E>,
     ) -> Result<usize, E> {
-        let per_batch = COLUMN_BATCH_VALUES.div_euclid(3 * n.max(1)).max(1);
+        let per_batch = COLUMN_BATCH_VALUES / (3 * n.max(1));
         self.compute_missing_in_batches(n, per_batch, solve_many)
     }
 
@@ -519,7 +519,7 @@ mod tests {
         (hn, hv)
     }
 
-    /// The frame's W, C and the correction equal the dense `H K⁻¹ Hᵀ` algebra.
+    /// Columns computed in batches are each point's own, and cached ones are kept.
     #[test]
     fn batched_columns_are_each_points_own() {
         let n = 12;
@@ -559,6 +559,7 @@ mod tests {
         assert!(calls.take().is_empty());
     }
 
+    /// The frame's W, C and the correction equal the dense `H K⁻¹ Hᵀ` algebra.
     #[test]
     fn frame_blocks_match_dense_algebra() {
         let (nn, nv) = (12, 18);
