@@ -127,6 +127,20 @@ impl TetLocator {
     }
 }
 
+/// Distance [mm] from `p` to the axis-aligned box of `nodes` (0 inside it; infinite without
+/// nodes). No triangle or element over these nodes is nearer to `p`: a query whose reach is
+/// shorter can be answered "nothing" without building a BVH.
+pub fn box_distance(nodes: &[Vector3<f64>], p: &Vector3<f64>) -> f64 {
+    let Some(first) = nodes.first() else {
+        return f64::INFINITY;
+    };
+    let (lo, hi) = nodes[1..]
+        .iter()
+        .fold((*first, *first), |(lo, hi), n| (lo.inf(n), hi.sup(n)));
+    let outside = (lo - p).sup(&Vector3::zeros()) + (p - hi).sup(&Vector3::zeros());
+    outside.norm()
+}
+
 /// The closest point of a triangulated surface to a query point.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct SurfaceHit {
@@ -528,6 +542,33 @@ mod tests {
             s.project(&n, &tris, &Vector3::new(0.5, 0.5, 30.0), 1.0)
                 .is_none()
         );
+    }
+
+    #[test]
+    fn box_distance_bounds_every_surface_query() {
+        let (n, _) = unit_tet();
+        let tris = vec![[0, 1, 2], [0, 2, 3], [0, 3, 1], [1, 2, 3]];
+        assert_eq!(
+            box_distance(&n, &Vector3::new(0.5, 0.2, 0.9)),
+            0.0,
+            "inside"
+        );
+        let d = box_distance(&n, &Vector3::new(4.0, -2.0, 0.5));
+        assert!((d - (9.0f64 + 4.0).sqrt()).abs() < 1e-12, "{d}");
+        assert_eq!(box_distance(&[], &Vector3::zeros()), f64::INFINITY);
+        // Never more than the distance to the nearest triangle: a projection within a reach
+        // shorter than the box distance finds nothing.
+        let s = SurfaceProjector::new(&n, &tris);
+        for p in [
+            Vector3::new(3.0, 0.5, 0.5),
+            Vector3::new(-1.0, -1.0, 2.5),
+            Vector3::new(0.5, 0.5, -0.3),
+        ] {
+            let d = box_distance(&n, &p);
+            let hit = s.project(&n, &tris, &p, 10.0).expect("hit");
+            assert!(d <= (hit.point - p).norm() + 1e-12, "{p:?}: {d}");
+            assert!(s.project(&n, &tris, &p, 0.99 * d).is_none(), "{p:?}");
+        }
     }
 
     #[test]

@@ -8,7 +8,7 @@ use crate::compliance::{PointColumns, PointMap};
 use crate::constraints::{
     Attachment, ConstraintGroup, ConstraintSet, GroupRole, Model, group, orthonormal_pair,
 };
-use crate::proximity::{Embedded, SurfaceProjector};
+use crate::proximity::{Embedded, SurfaceProjector, box_distance};
 use crate::world::{SlidingPoint, World, closest_on_polyline};
 use nalgebra::Matrix3;
 use needle_core::payload::GroupKind;
@@ -130,9 +130,15 @@ fn contact_rows<const N: usize>(
     inter: &Interaction,
 ) {
     let gel_nodes = world.gel.positions();
-    let projector = SurfaceProjector::new(gel_nodes, &world.surface);
     let n_last = world.needle.node_count() - 1;
     let tip = world.needle.positions()[n_last];
+    // On the way to the gel, the tip farther than CONTACT_DISTANCE from the box of the gel's
+    // nodes is farther than that from every surface triangle: no rows, and no BVH built over
+    // the whole surface for a query that cannot hit (most of the approach's steps).
+    if !world.in_contact && box_distance(gel_nodes, &tip) > CONTACT_DISTANCE {
+        return;
+    }
+    let projector = SurfaceProjector::new(gel_nodes, &world.surface);
     // A tip that pushed on the surface last step keeps its contact rows however deep the
     // dimple under it (a point load on a coarse mesh can indent by more than
     // CONTACT_DISTANCE): a contact is never lost by looking too close.
