@@ -263,19 +263,11 @@ impl CorotationalBeams {
         ];
         // Variables: z0..3 relative translation, z3..6 rotation of end 1, z6..9 rotation of end 2.
         let d: V3 = std::array::from_fn(|i| Hd::var(d0[i], i));
-        let w: [V3; 2] = [
-            std::array::from_fn(|i| Hd::var(0.0, 3 + i)),
-            std::array::from_fn(|i| Hd::var(0.0, 6 + i)),
-        ];
-        // T_i(ω) = (I + W + ½W²) A_i, column by column.
+        // T_i(ω) = (I + W + ½W²) A_i, column by column, at ω = 0 with its exact derivatives.
         let t: [[V3; 3]; 2] = std::array::from_fn(|i| {
             std::array::from_fn(|k| {
                 let col = ends[i].column(k);
-                let a = [col[0], col[1], col[2]];
-                let wa = hyperdual::cross_c(&w[i], &a);
-                let wwa = hyperdual::cross(&w[i], &wa);
-                let c: V3 = a.map(Hd::cst);
-                hyperdual::add(&hyperdual::add(&c, &wa), &hyperdual::scale_f(&wwa, 0.5))
+                hyperdual::rotated_column(&[col[0], col[1], col[2]], 3 + 3 * i)
             })
         });
         let l2 = hyperdual::dot(&d, &d);
