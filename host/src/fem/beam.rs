@@ -280,7 +280,8 @@ impl CorotationalBeams {
         let r2 = hyperdual::cross(&r3, &e1);
         let frame = [e1, r2, r3];
         let theta: [V3; 2] = std::array::from_fn(|i| {
-            let rb = |r: usize, c: usize| hyperdual::dot(&frame[r], &t[i][c]);
+            // `t[i]` depends on end i's rotation variables alone.
+            let rb = |r: usize, c: usize| hyperdual::dot_local(&frame[r], &t[i][c], 3 + 3 * i);
             let v: V3 = [
                 (rb(2, 1) - rb(1, 2)) * 0.5,
                 (rb(0, 2) - rb(2, 0)) * 0.5,

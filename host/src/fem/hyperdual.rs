@@ -114,6 +114,46 @@ impl Hd {
         }
     }
 
+    /// [`Self::fold_product`] for a `b` that depends only on the three variables `o..o + 3` (its
+    /// gradient and Hessian zero elsewhere): the terms of `b`'s zero entries are left out, which
+    /// changes no sum but for the sign of a zero result (`x + 0 = x`); a product with an
+    /// infinite entry of `a` would give NaN there and gives ±∞ here.
+    #[inline(always)]
+    fn fold_product_local(&mut self, a: &Hd, b: &Hd, o: usize, put: impl Fn(f64, f64) -> f64) {
+        debug_assert!(o + 3 <= N);
+        self.v = put(self.v, a.v * b.v);
+        // Every entry's `b.v · a` part first (one pass), then the few terms `b`'s three
+        // variables add, each sum in the order of `fold_product` (`x + y = y + x` exactly).
+        let mut g: [f64; N] = core::array::from_fn(|i| b.v * a.g[i]);
+        for (gi, bg) in g[o..o + 3].iter_mut().zip(&b.g[o..o + 3]) {
+            *gi += a.v * bg;
+        }
+        let mut h: [f64; H] = core::array::from_fn(|k| b.v * a.h[k]);
+        for i in 0..N {
+            let row = i * (2 * N - i - 1) / 2;
+            if (o..o + 3).contains(&i) {
+                for j in i..N {
+                    let k = row + j;
+                    h[k] = if j < o + 3 {
+                        (a.v * b.h[k] + h[k]) + a.g[i] * b.g[j] + b.g[i] * a.g[j]
+                    } else {
+                        h[k] + b.g[i] * a.g[j]
+                    };
+                }
+            } else if i < o {
+                for j in o..o + 3 {
+                    h[row + j] += a.g[i] * b.g[j];
+                }
+            }
+        }
+        for (out, x) in self.g.iter_mut().zip(g) {
+            *out = put(*out, x);
+        }
+        for (out, x) in self.h.iter_mut().zip(h) {
+            *out = put(*out, x);
+        }
+    }
+
     /// `self + a b`, in place (the same numbers as `self + a * b`).
     pub fn mul_add(&mut self, a: &Hd, b: &Hd) {
         self.fold_product(a, b, |s, p| s + p);
@@ -207,6 +247,16 @@ pub(crate) fn dot(a: &V3, b: &V3) -> Hd {
     let mut r = &a[0] * &b[0];
     r.mul_add(&a[1], &b[1]);
     r.mul_add(&a[2], &b[2]);
+    r
+}
+
+/// [`dot`] of `a` with a `b` that depends only on the variables `o..o + 3`
+/// ([`Hd::fold_product_local`]): the same numbers but for the sign of zeros.
+pub(crate) fn dot_local(a: &V3, b: &V3, o: usize) -> Hd {
+    let mut r = Hd::cst(0.0);
+    r.fold_product_local(&a[0], &b[0], o, |_, p| p);
+    r.fold_product_local(&a[1], &b[1], o, |s, p| s + p);
+    r.fold_product_local(&a[2], &b[2], o, |s, p| s + p);
     r
 }
 
@@ -351,6 +401,31 @@ mod tests {
                     );
                 }
             }
+        }
+    }
+
+    #[test]
+    fn dot_local_is_dot_for_a_factor_of_three_variables() {
+        // A full factor (every variable) against one of variables o..o + 3 only: every entry
+        // equal to the plain product's (zeros of either sign equal).
+        let eq = |x: &Hd, y: &Hd| {
+            x.v == y.v
+                && x.g.iter().zip(&y.g).all(|(p, q)| p == q)
+                && x.h.iter().zip(&y.h).all(|(p, q)| p == q)
+        };
+        let vars: Vec<Hd> = (0..N).map(|k| Hd::var(0.2 + 0.15 * k as f64, k)).collect();
+        for o in [0, 3, 6] {
+            let a: V3 = core::array::from_fn(|r| {
+                (vars[r] * vars[(r + 4) % N] + vars[8 - r]).sqrt() * vars[(r + 2) % N]
+            });
+            let b: V3 = core::array::from_fn(|r| {
+                (vars[o + r] * vars[o + (r + 1) % 3] + 1.0).recip() - vars[o + (r + 2) % 3]
+            });
+            assert!(
+                b.iter()
+                    .all(|x| (0..N).all(|i| (o..o + 3).contains(&i) || x.g[i] == 0.0))
+            );
+            assert!(eq(&dot(&a, &b), &dot_local(&a, &b, o)), "offset {o}");
         }
     }
 
