@@ -298,7 +298,7 @@ pub(crate) fn cross_c(a: &V3, b: &[f64; 3]) -> V3 {
 }
 
 /// `(I + W + ½W²) a` for a constant `a`, `W = [ω]×`, as functions of the variables
-/// `ω = z_offset..z_offset + 3` at `ω = 0`: the value `a`, the gradient `∂(ω × a)/∂ω` and the
+/// `ω = offset..offset + 3` at `ω = 0`: the value `a`, the gradient `∂(ω × a)/∂ω` and the
 /// Hessian `½ ∂²(ω × (ω × a))/∂ω²`, written directly — the numbers the operators give for
 /// `a + ω × a + ½ ω × (ω × a)` (every entry a single `±a_q` or `½ a_q`, so no rounding either
 /// way), without their 18 products of 440-byte values.
