@@ -334,6 +334,13 @@ pub(crate) fn rotated_column(a: &[f64; 3], offset: usize) -> V3 {
 mod tests {
     use super::*;
 
+    /// Value, gradient and Hessian equal entry by entry (`==`: zeros of either sign equal).
+    fn equal_numbers(x: &Hd, y: &Hd) -> bool {
+        x.v == y.v
+            && x.g.iter().zip(&y.g).all(|(p, q)| p == q)
+            && x.h.iter().zip(&y.h).all(|(p, q)| p == q)
+    }
+
     #[test]
     fn packed_hessian_indices_are_the_pairs() {
         for (k, &(i, j)) in PAIRS.iter().enumerate() {
@@ -374,12 +381,7 @@ mod tests {
 
     #[test]
     fn rotated_column_is_the_operators_numbers() {
-        // The same numbers as the products it replaces (zeros of either sign equal).
-        let eq = |x: &Hd, y: &Hd| {
-            x.v == y.v
-                && x.g.iter().zip(&y.g).all(|(p, q)| p == q)
-                && x.h.iter().zip(&y.h).all(|(p, q)| p == q)
-        };
+        // The same numbers as the products it replaces.
         let mut seed = 7u64;
         let mut next = || {
             seed = seed.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1);
@@ -396,7 +398,7 @@ mod tests {
                 let new = rotated_column(&a, offset);
                 for j in 0..3 {
                     assert!(
-                        eq(&old[j], &new[j]),
+                        equal_numbers(&old[j], &new[j]),
                         "a {a:?}, offset {offset}, component {j}"
                     );
                 }
@@ -407,12 +409,7 @@ mod tests {
     #[test]
     fn dot_local_is_dot_for_a_factor_of_three_variables() {
         // A full factor (every variable) against one of variables o..o + 3 only: every entry
-        // equal to the plain product's (zeros of either sign equal).
-        let eq = |x: &Hd, y: &Hd| {
-            x.v == y.v
-                && x.g.iter().zip(&y.g).all(|(p, q)| p == q)
-                && x.h.iter().zip(&y.h).all(|(p, q)| p == q)
-        };
+        // equal to the plain product's.
         let vars: Vec<Hd> = (0..N).map(|k| Hd::var(0.2 + 0.15 * k as f64, k)).collect();
         for o in [0, 3, 6] {
             let a: V3 = core::array::from_fn(|r| {
@@ -425,7 +422,10 @@ mod tests {
                 b.iter()
                     .all(|x| (0..N).all(|i| (o..o + 3).contains(&i) || x.g[i] == 0.0))
             );
-            assert!(eq(&dot(&a, &b), &dot_local(&a, &b, o)), "offset {o}");
+            assert!(
+                equal_numbers(&dot(&a, &b), &dot_local(&a, &b, o)),
+                "offset {o}"
+            );
         }
     }
 
