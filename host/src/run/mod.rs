@@ -432,7 +432,7 @@ pub fn run_setup_until<const N: usize>(
     let mut books = Books {
         stats: Statistics::new(&world, n),
         watchdog: Watchdog::new(&world),
-        blocked: Blocked::new(params.dt),
+        blocked: Blocked::new(params.dt, params.insertion.advance_per_step),
         files,
     };
     // Grown step by step: `steps` may be far more than the run will reach.

@@ -87,7 +87,9 @@ pub enum StopReason {
     },
     /// For [`BLOCKED_AFTER_S`] the controller could not bring the tip toward its target
     /// without entering an obstacle's clearance margin (flags `CLEARANCE_ACTIVE` and
-    /// `TARGET_UNREACHABLE` in every step): the run stops rather than push into the obstacle.
+    /// `TARGET_UNREACHABLE` in every step) and the tip's depth moved by less than
+    /// [`BLOCKED_MOVE_SHARE`] of the insertion scheduled over that time: the run stops rather
+    /// than push into the obstacle.
     Blocked {
         /// Steps in a row.
         steps: usize,
@@ -162,7 +164,8 @@ impl fmt::Display for StopReason {
             Self::Blocked { steps, seconds } => write!(
                 f,
                 "blocked: for {seconds:.1} s ({steps} steps) an obstacle's clearance margin held \
-                 the needle and the target stayed out of reach; stopped rather than push into it"
+                 the needle, the target stayed out of reach and the tip did not advance; \
+                 stopped rather than push into it"
             ),
             Self::Interrupted => write!(f, "stopped by the caller"),
         }
@@ -173,39 +176,80 @@ impl fmt::Display for StopReason {
 /// before the run stops ([`StopReason::Blocked`]) [s].
 pub const BLOCKED_AFTER_S: f64 = 1.0;
 
+/// Share of the scheduled insertion (`advance_per_step` per step) by which the tip's depth must
+/// move over [`BLOCKED_AFTER_S`] of held steps for the controller not to count as blocked [-].
+/// A tip that slides along an obstacle's margin and keeps advancing (the flags of a held step
+/// set at every step, the depth growing at the scheduled rate) is steered, not blocked; a tip
+/// held at the margin moves by a few hundredths of a millimetre per step at most.
+pub const BLOCKED_MOVE_SHARE: f64 = 0.25;
+
 /// Counts the steps in a row in which a clearance row held the controller and the target was
-/// out of reach ([`StopReason::Blocked`]).
+/// out of reach, and stops the run ([`StopReason::Blocked`]) once they last
+/// [`BLOCKED_AFTER_S`] with the tip's depth moved by less than [`BLOCKED_MOVE_SHARE`] of the
+/// insertion scheduled over them.
 #[derive(Clone, Debug)]
 pub struct Blocked {
     run: usize,
     limit: usize,
     dt: f64,
+    /// The least depth change over `limit` held steps that counts as moving [mm] (0: the
+    /// flags alone decide, for a schedule without a finite positive advance).
+    min_move: f64,
+    /// The depths after the last `limit + 1` steps, oldest first [mm].
+    depths: std::collections::VecDeque<f64>,
 }
 
 impl Blocked {
-    /// For a control period `dt` [s]: stops after [`BLOCKED_AFTER_S`].
-    pub fn new(dt: f64) -> Self {
+    /// For a control period `dt` [s] and a target that advances `advance_per_step` [mm] per
+    /// step: stops after [`BLOCKED_AFTER_S`] of held steps in which the tip's depth moved by
+    /// less than [`BLOCKED_MOVE_SHARE`] of the scheduled insertion.
+    pub fn new(dt: f64, advance_per_step: f64) -> Self {
         let limit = (BLOCKED_AFTER_S / dt).ceil();
+        let limit = if limit.is_finite() && limit >= 1.0 {
+            limit as usize
+        } else {
+            1
+        };
+        let min_move = BLOCKED_MOVE_SHARE * advance_per_step * limit as f64;
         Self {
             run: 0,
-            limit: if limit.is_finite() && limit >= 1.0 {
-                limit as usize
-            } else {
-                1
-            },
+            limit,
             dt,
+            min_move: if min_move.is_finite() && min_move > 0.0 {
+                min_move
+            } else {
+                0.0
+            },
+            depths: std::collections::VecDeque::with_capacity(limit + 1),
         }
     }
 
-    /// After a recorded step: the reason to stop once the run of held steps reaches the limit.
+    /// After a recorded step: the reason to stop once the run of held steps reaches the limit
+    /// with the tip's depth (0 before the puncture) moved by less than the least move over it.
     pub fn after_step(&mut self, r: &StepReport) -> Option<StopReason> {
+        if self.depths.len() > self.limit {
+            self.depths.pop_front();
+        }
+        self.depths
+            .push_back(if r.inserted { r.depth } else { 0.0 });
         let held = StatusFlags::CLEARANCE_ACTIVE | StatusFlags::TARGET_UNREACHABLE;
         if r.solver.flags & held == held {
             self.run += 1;
         } else {
             self.run = 0;
         }
-        (self.run >= self.limit).then_some(StopReason::Blocked {
+        if self.run < self.limit {
+            return None;
+        }
+        // Since the depth before the last `limit` steps, all of them held (since the first
+        // step when the run began with the run's first step).
+        let moved = match (self.depths.front(), self.depths.back()) {
+            (Some(a), Some(b)) => (b - a).abs(),
+            _ => 0.0,
+        };
+        // NaN depths count as not moving: a held run with no usable depth stops as before.
+        let moving = self.min_move > 0.0 && moved >= self.min_move;
+        (!moving).then_some(StopReason::Blocked {
             steps: self.run,
             seconds: self.run as f64 * self.dt,
         })
@@ -319,7 +363,7 @@ mod tests {
     fn blocked_counts_steps_held_by_a_clearance_with_the_target_out_of_reach() {
         let held = StatusFlags::CLEARANCE_ACTIVE | StatusFlags::TARGET_UNREACHABLE;
         // dt = 0.04 s: 25 steps make the second.
-        let mut b = Blocked::new(0.04);
+        let mut b = Blocked::new(0.04, 0.1);
         assert!((0..24).all(|_| b.after_step(&report(held)).is_none()));
         // One free step starts the count again.
         assert!(
@@ -345,7 +389,66 @@ mod tests {
             "{why}"
         );
         // A nonsensical period still gives a limit of at least one step.
-        let mut b = Blocked::new(f64::NAN);
+        let mut b = Blocked::new(f64::NAN, 0.1);
         assert!(b.after_step(&report(held)).is_some());
+    }
+
+    fn inserted(flags: u32, depth: f64) -> StepReport {
+        let mut r = report(flags);
+        r.inserted = true;
+        r.depth = depth;
+        r
+    }
+
+    /// `gmsh_box` with `--set inverse.delta_q=0.003` was stopped as blocked at step 460: the
+    /// flags of a held step were set for 25 steps while the tip slid along an obstacle's margin
+    /// from 27.0 to 30.5 mm deep, 0.05–0.29 mm from its target.
+    #[test]
+    fn a_tip_advancing_along_an_obstacle_margin_is_not_blocked() {
+        let held = StatusFlags::CLEARANCE_ACTIVE | StatusFlags::TARGET_UNREACHABLE;
+        // dt = 0.04 s, 0.1 mm per step: 25 held steps, and the least move 0.25 · 2.5 mm.
+        let mut b = Blocked::new(0.04, 0.1);
+        assert!(b.after_step(&inserted(0, 27.0)).is_none());
+        // Advancing at the scheduled rate: never blocked, however long the flags stay set.
+        assert!((1..=100).all(|k| {
+            b.after_step(&inserted(held, 27.0 + 0.1 * f64::from(k)))
+                .is_none()
+        }));
+        // At a quarter of the rate and more: still moving.
+        let mut b = Blocked::new(0.04, 0.1);
+        assert!(b.after_step(&inserted(0, 27.0)).is_none());
+        assert!((1..=100).all(|k| {
+            b.after_step(&inserted(held, 27.0 + 0.0251 * f64::from(k)))
+                .is_none()
+        }));
+        // Then held in place: blocked at once, the last 25 steps having moved 24 · 0.0251 mm
+        // (less than 0.625 mm).
+        let at = 27.0 + 0.0251 * 100.0;
+        let stop = (1..=50)
+            .find(|_| b.after_step(&inserted(held, at)).is_some())
+            .expect("blocked");
+        assert_eq!(stop, 1);
+        // A tip creeping at a tenth of the rate is blocked after the 25 steps.
+        let mut b = Blocked::new(0.04, 0.1);
+        assert!((0..24).all(|k| {
+            b.after_step(&inserted(held, 30.0 + 0.01 * f64::from(k)))
+                .is_none()
+        }));
+        let why = b.after_step(&inserted(held, 30.24)).expect("blocked");
+        assert!(
+            matches!(why, StopReason::Blocked { steps: 25, .. }),
+            "{why:?}"
+        );
+        // Moving back out (a retraction) counts as moving too.
+        let mut b = Blocked::new(0.04, 0.1);
+        assert!(b.after_step(&inserted(0, 30.0)).is_none());
+        assert!((1..=60).all(|k| {
+            b.after_step(&inserted(held, 30.0 - 0.1 * f64::from(k)))
+                .is_none()
+        }));
+        // No finite advance: the flags alone decide, as before.
+        let mut b = Blocked::new(0.04, 0.0);
+        assert!((0..24).all(|k| { b.after_step(&inserted(held, f64::from(k))).is_none() }));
+        assert!(b.after_step(&inserted(held, 30.0)).is_some());
     }
 }
