@@ -287,7 +287,10 @@ pub fn gel_params(scene: &Scene) -> GelParams {
         }),
         refresh: (scene.solver.refresh_rotation > 0.0).then_some(RefreshParams {
             rotation: scene.solver.refresh_rotation,
-            ceiling: scene.solver.refresh_ceiling as usize,
+            ceiling: scene
+                .solver
+                .refresh_ceiling
+                .map_or(usize::MAX, |c| c as usize),
         }),
         factor_precision: match scene.solver.factor_precision {
             FactorPrecisionSpec::Single => Precision::Single,

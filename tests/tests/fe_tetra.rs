@@ -1034,6 +1034,43 @@ fn clamped_box_40x20x20() -> (TetMesh, Vec<usize>) {
     })
 }
 
+/// The default adaptive refresh has no ceiling (`RefreshParams::ceiling` = `usize::MAX`, the
+/// scene's `solver.refresh_ceiling` absent): a gel whose elements do not rotate keeps its first
+/// factor. With the old ceiling of 16 steps a gel at rest (before the needle reaches it) was
+/// refactorised every 16 steps for nothing; with a ceiling given, it still is.
+#[test]
+fn a_gel_at_rest_keeps_its_factor_without_a_ceiling() {
+    let run = |ceiling: usize| {
+        let (mesh, bottom, params) = background_box();
+        let params = GelParams {
+            background_factorization: true,
+            refactor_every: 2,
+            refresh: Some(RefreshParams {
+                rotation: 0.05,
+                ceiling,
+            }),
+            ..params
+        };
+        let mut model = GelModel::try_new(mesh, &bottom, &params).unwrap();
+        let rest = vec![0.0; model.dof_count()];
+        for _ in 0..48 {
+            model.free_motion(&rest).unwrap();
+        }
+        model.background_counts().unwrap()
+    };
+    assert_eq!(
+        run(usize::MAX),
+        (0, 1),
+        "only the first step's factorisation"
+    );
+    let (background, immediate) = run(16);
+    assert_eq!(immediate, 1);
+    assert!(
+        background >= 2,
+        "the ceiling refreshes the resting gel: {background}"
+    );
+}
+
 fn background_box() -> (TetMesh, Vec<usize>, GelParams) {
     let (mesh, bottom) = clamped_box_40x20x20();
     let params = GelParams {

@@ -131,7 +131,7 @@ fn factorization(quick: bool, specs: &mut Vec<Spec>) {
         ),
         (
             &[],
-            "background, adaptive refresh: a factor when an element turned 0.05 rad or at 16 steps, single-precision factor (default)",
+            "background, adaptive refresh: a factor when an element turned 0.05 rad, single-precision factor (default)",
         ),
         (
             &[("solver.factor_precision", "\"double\"")],

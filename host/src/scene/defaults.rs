@@ -134,9 +134,6 @@ pub(super) fn default_pcg_max_iterations() -> u32 {
 pub(super) fn default_refresh_rotation() -> f64 {
     0.05
 }
-pub(super) fn default_refresh_ceiling() -> u32 {
-    16
-}
 pub(super) fn default_factor_precision() -> FactorPrecisionSpec {
     FactorPrecisionSpec::Single
 }

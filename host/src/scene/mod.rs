@@ -526,9 +526,11 @@ pub struct SolverSpec {
     #[serde(default = "default_refresh_rotation")]
     pub refresh_rotation: f64,
     /// With `refresh_rotation > 0`: the largest interval between the matrices of two
-    /// consecutive factors [steps].
-    #[serde(default = "default_refresh_ceiling")]
-    pub refresh_ceiling: u32,
+    /// consecutive factors [steps]; absent (the default): none, a factor whose elements have
+    /// not rotated by `refresh_rotation` is kept however old it is (the tangent `R K0 Rᵀ`
+    /// changes only through the rotations).
+    #[serde(default)]
+    pub refresh_ceiling: Option<u32>,
     /// The precision the gel's factor is stored and solved in: `"single"` (`f32`: half the
     /// memory and memory traffic; each factor is checked by a probe solve and redone in `f64`,
     /// for good, when its relative error exceeds 1e-3) or `"double"`. The needle's factor is
@@ -587,7 +589,7 @@ impl Default for SolverSpec {
             pcg_tolerance: default_pcg_tolerance(),
             pcg_max_iterations: default_pcg_max_iterations(),
             refresh_rotation: default_refresh_rotation(),
-            refresh_ceiling: default_refresh_ceiling(),
+            refresh_ceiling: None,
             factor_precision: default_factor_precision(),
         }
     }

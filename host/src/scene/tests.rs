@@ -234,7 +234,12 @@ fn factorisation_defaults_follow_the_mode() {
     let e = set(&[("solver.refactor_every", "0")]).unwrap_err();
     assert_eq!(e.field, "solver.refactor_every");
     assert_eq!(s.solver.refresh_rotation, 0.05, "the adaptive refresh");
-    assert_eq!(s.solver.refresh_ceiling, 16);
+    assert_eq!(
+        s.solver.refresh_ceiling, None,
+        "no ceiling: refreshed by rotation alone"
+    );
+    let ceiling = set(&[("solver.refresh_ceiling", "16")]).unwrap();
+    assert_eq!(ceiling.solver.refresh_ceiling, Some(16));
     let adaptive = set(&[("solver.refresh_rotation", "0.02")]).unwrap();
     assert_eq!(adaptive.solver.refresh_rotation, 0.02);
     let fixed = set(&[("solver.refresh_rotation", "0")]).unwrap();

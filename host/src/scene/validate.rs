@@ -466,10 +466,12 @@ impl Scene {
                 ),
             );
         }
-        if !(1..=10_000).contains(&s.refresh_ceiling) {
+        if let Some(c) = s.refresh_ceiling
+            && !(1..=10_000).contains(&c)
+        {
             return fail(
                 "solver.refresh_ceiling",
-                format!("must be between 1 and 10000 (got {})", s.refresh_ceiling),
+                format!("must be between 1 and 10000 when given (got {c})"),
             );
         }
         Ok(())
