@@ -40,6 +40,9 @@ pub struct Plan {
     /// The gel's support motion, as the summary gives it (`gel.support_motion`; none: the
     /// support stays still).
     pub support_motion: Option<crate::support_motion::MotionSummary>,
+    /// The target only goes in (`insertion.mode = "insert"`): a needle that leaves the gel
+    /// after puncturing it did not follow the path ([`crate::run::metrics::Outcome::of`]).
+    pub insert_only: bool,
 }
 
 /// A scene, set up: the world at its start and every typed parameter; a robot of `N` joints
@@ -347,6 +350,7 @@ fn plan(scene: &Scene) -> Plan {
         steps: planned_steps(scene),
         vtk_every: scene.output.vtk_every,
         support_motion: None,
+        insert_only: scene.insertion.mode == crate::scene::InsertionMode::Insert,
     }
 }
 

@@ -358,6 +358,13 @@ fn print_text(s: &RunSummary) {
         mm3(s.path_deviation_mean_mm),
         mm3(s.path_deviation_max_mm),
     );
+    if s.withdrawals > 0 {
+        println!(
+            "the needle left the gel {} time(s) after puncturing it (an insertion that does is not \
+             counted as reached)",
+            s.withdrawals
+        );
+    }
     for c in &s.clearances {
         println!(
             "clearance to {}: {:.3} mm{}",

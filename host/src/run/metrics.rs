@@ -4,8 +4,10 @@
 //!
 //! **Reached** is strict: the run was not stopped, no obstacle was hit, the tip came within
 //! [`REACH_TOLERANCE_MM`] of the path's end point (deformed with the gel) within
-//! [`STEP_ALLOWANCE`] × the nominal steps (path length / `advance_per_step`), and it is still
-//! within that tolerance at the run's last step.
+//! [`STEP_ALLOWANCE`] × the nominal steps (path length / `advance_per_step`), it is still
+//! within that tolerance at the run's last step, and, on an insertion (not a back-and-forth
+//! schedule), the needle never left the gel after puncturing it: a needle pulled out and
+//! pushed in again entered the tissue twice, the second time off the planned entry.
 
 // Units are written in brackets ([mm], [N]) as in the workspace style: not intra-doc links.
 #![allow(rustdoc::broken_intra_doc_links)]
@@ -61,20 +63,24 @@ impl Outcome {
     }
 
     /// The outcome of a run: stopped → diverged, else hit → obstacle hit, else reached when the
-    /// tip ends within the tolerance and got there within the allowance, else missed.
+    /// tip ends within the tolerance, got there within the allowance and the needle was not
+    /// `withdrawn` from the gel on the way, else missed.
     pub fn of(
         stopped: bool,
         obstacle_hit: bool,
         e_final_mm: f64,
         steps_to_target: Option<usize>,
         steps_nominal: usize,
+        withdrawn: bool,
     ) -> Self {
         let allowed = (STEP_ALLOWANCE * steps_nominal as f64).floor() as usize;
         if stopped {
             Self::Diverged
         } else if obstacle_hit {
             Self::ObstacleHit
-        } else if e_final_mm <= REACH_TOLERANCE_MM && steps_to_target.is_some_and(|k| k <= allowed)
+        } else if e_final_mm <= REACH_TOLERANCE_MM
+            && steps_to_target.is_some_and(|k| k <= allowed)
+            && !withdrawn
         {
             Self::Reached
         } else {
@@ -200,12 +206,32 @@ mod tests {
     #[test]
     fn reached_needs_tolerance_time_and_no_hit_or_stop() {
         use Outcome::*;
-        assert_eq!(Outcome::of(false, false, 0.9, Some(120), 100), Reached);
-        assert_eq!(Outcome::of(false, false, 1.1, Some(120), 100), MissedTarget);
-        assert_eq!(Outcome::of(false, false, 0.9, Some(121), 100), MissedTarget);
-        assert_eq!(Outcome::of(false, false, 0.9, None, 100), MissedTarget);
-        assert_eq!(Outcome::of(false, true, 0.1, Some(90), 100), ObstacleHit);
-        assert_eq!(Outcome::of(true, true, 0.1, Some(90), 100), Diverged);
+        assert_eq!(
+            Outcome::of(false, false, 0.9, Some(120), 100, false),
+            Reached
+        );
+        assert_eq!(
+            Outcome::of(false, false, 1.1, Some(120), 100, false),
+            MissedTarget
+        );
+        assert_eq!(
+            Outcome::of(false, false, 0.9, Some(121), 100, false),
+            MissedTarget
+        );
+        assert_eq!(
+            Outcome::of(false, false, 0.9, None, 100, false),
+            MissedTarget
+        );
+        assert_eq!(
+            Outcome::of(false, true, 0.1, Some(90), 100, false),
+            ObstacleHit
+        );
+        assert_eq!(Outcome::of(true, true, 0.1, Some(90), 100, false), Diverged);
+        // Pulled out of the gel and pushed in again on the way: not reached, however close.
+        assert_eq!(
+            Outcome::of(false, false, 0.0, Some(90), 100, true),
+            MissedTarget
+        );
         let codes: Vec<u8> = [Reached, Diverged, MissedTarget, ObstacleHit]
             .iter()
             .map(|o| o.exit_code())

@@ -184,6 +184,11 @@ pub struct RunSummary {
     pub steps_nominal: usize,
     /// Smallest clearance to any obstacle [mm] (`+∞`, written `null`, without obstacles).
     pub min_clearance_mm: f64,
+    /// Times the needle left the gel after puncturing it (every sliding point released, the
+    /// surface whole again) and was not inside at the next step. On an insertion
+    /// (`insertion.mode = "insert"`) any is a miss: the needle entered the tissue again, off
+    /// the planned entry.
+    pub withdrawals: usize,
     /// How the run ended ([`Outcome`]; reached is defined in [`super::metrics`]).
     pub outcome: Outcome,
 }
@@ -265,6 +270,15 @@ fn count_flag(reports: &[StepReport], flag: u32) -> usize {
         .count()
 }
 
+/// Times the needle left the gel after puncturing it: steps not inserted right after an
+/// inserted one (every sliding point released, the surface whole again).
+fn withdrawals(reports: &[StepReport]) -> usize {
+    reports
+        .windows(2)
+        .filter(|w| w[0].inserted && !w[1].inserted)
+        .count()
+}
+
 /// The stage timing of `reports`.
 fn stage_timing(reports: &[StepReport]) -> StageTiming {
     let times = |f: fn(&StepReport) -> f64| timing(reports.iter().map(f).collect());
@@ -314,12 +328,14 @@ impl Statistics {
         // A run stopped on purpose (blocked, or by its caller) did not fail: its outcome is
         // judged from where the tip is.
         let failed = (end.stopped.as_ref()).is_some_and(|(_, why)| !why.is_deliberate());
+        let withdrawals = withdrawals(reports);
         let outcome = Outcome::of(
             failed || reports.is_empty(),
             min_clearance_mm < 0.0,
             self.path.e_end,
             self.path.steps_to_target,
             plan.steps,
+            plan.insert_only && withdrawals > 0,
         );
         RunSummary {
             scene: plan.name.clone(),
@@ -405,7 +421,36 @@ impl Statistics {
             steps_to_target: self.path.steps_to_target,
             steps_nominal: plan.steps,
             min_clearance_mm,
+            withdrawals,
             outcome,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn at(inserted: bool) -> StepReport {
+        StepReport {
+            inserted,
+            ..StepReport::default()
+        }
+    }
+
+    /// Seed 31's `helix_full` (held-out set of `tools/gen_suite.py --seed 31`) without the
+    /// refresh ceiling: the arm dragged the gel, the tip came out of it at step 406, flew free
+    /// and punctured it again, and the run counted as reached with e_max 38.4 mm.
+    #[test]
+    fn withdrawals_count_each_exit_from_the_gel_after_the_puncture() {
+        let run = |s: &str| -> Vec<StepReport> { s.chars().map(|c| at(c == 'i')).collect() };
+        assert_eq!(withdrawals(&run("")), 0);
+        assert_eq!(withdrawals(&run("aaaiiiii")), 0, "the puncture is not one");
+        assert_eq!(withdrawals(&run("aaiiiaaiii")), 1);
+        assert_eq!(
+            withdrawals(&run("aiaiiaiia")),
+            3,
+            "one per exit, the last at the end"
+        );
     }
 }
