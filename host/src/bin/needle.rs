@@ -360,8 +360,8 @@ fn print_text(s: &RunSummary) {
     );
     if s.withdrawals > 0 {
         println!(
-            "the needle left the gel {} time(s) after puncturing it (an insertion that does is not \
-             counted as reached)",
+            "the needle left the gel {} time(s) after puncturing it (on an insertion, not a \
+             back-and-forth schedule, such a run is not counted as reached)",
             s.withdrawals
         );
     }

@@ -185,9 +185,8 @@ pub struct RunSummary {
     /// Smallest clearance to any obstacle [mm] (`+∞`, written `null`, without obstacles).
     pub min_clearance_mm: f64,
     /// Times the needle left the gel after puncturing it (every sliding point released, the
-    /// surface whole again) and was not inside at the next step. On an insertion
-    /// (`insertion.mode = "insert"`) any is a miss: the needle entered the tissue again, off
-    /// the planned entry.
+    /// surface whole again). On an insertion (`insertion.mode = "insert"`) any is a miss: a
+    /// needle that goes on enters the tissue a second time, off the planned entry.
     pub withdrawals: usize,
     /// How the run ended ([`Outcome`]; reached is defined in [`super::metrics`]).
     pub outcome: Outcome,
