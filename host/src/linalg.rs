@@ -197,6 +197,10 @@ impl SymmetricMatrix {
     }
 }
 
+/// The source of [`Cholesky::stamp`]: every numeric factorisation in the process takes the
+/// next value.
+static FACTOR_STAMPS: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(1);
+
 /// Sparse Cholesky `A = L Lᵀ` with the symbolic part computed once and the numeric part
 /// refreshed by [`Cholesky::factorize`]; all memory is allocated at construction (a
 /// single-precision factor that falls back to double allocates its `f64` factor then, once).
@@ -210,6 +214,9 @@ pub struct Cholesky {
     solve_mem: MemBuffer,
     solve_cols: usize,
     factorized: bool,
+    /// Which numeric factorisation this is: a fresh value of [`FACTOR_STAMPS`] each time
+    /// (0 before the first). Survives swaps of whole factors between buffers.
+    stamp: u64,
     fallbacks: u64,
     probe_error: Option<f64>,
 }
@@ -326,6 +333,7 @@ impl Cholesky {
             solve_mem,
             solve_cols,
             factorized: false,
+            stamp: 0,
             fallbacks: 0,
             probe_error: None,
         })
@@ -351,6 +359,12 @@ impl Cholesky {
     /// Whether a valid numeric factorisation is available.
     pub fn is_factorized(&self) -> bool {
         self.factorized
+    }
+
+    /// The identity of the numeric factorisation held (0: none yet): two equal stamps are
+    /// the same factor of the same matrix, whichever buffer holds it now.
+    pub fn stamp(&self) -> u64 {
+        self.stamp
     }
 
     /// The precision the factor is stored in now (`Double` after a fallback).
@@ -384,6 +398,7 @@ impl Cholesky {
     /// then invalid), [`LinalgError::DimensionMismatch`] for a matrix of another size.
     pub fn factorize(&mut self, a: &SymmetricMatrix) -> Result<(), LinalgError> {
         self.factorized = false;
+        self.stamp = FACTOR_STAMPS.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
         if a.pattern.n != self.dim() {
             return Err(LinalgError::DimensionMismatch {
                 expected: self.dim(),

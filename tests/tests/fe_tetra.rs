@@ -1041,16 +1041,7 @@ fn clamped_box_40x20x20() -> (TetMesh, Vec<usize>) {
 #[test]
 fn a_gel_at_rest_keeps_its_factor_without_a_ceiling() {
     let run = |ceiling: usize| {
-        let (mesh, bottom, params) = background_box();
-        let params = GelParams {
-            background_factorization: true,
-            refactor_every: 2,
-            refresh: Some(RefreshParams {
-                rotation: 0.05,
-                ceiling,
-            }),
-            ..params
-        };
+        let (mesh, bottom, params) = adaptive_box(ceiling);
         let mut model = GelModel::try_new(mesh, &bottom, &params).unwrap();
         let rest = vec![0.0; model.dof_count()];
         for _ in 0..48 {
@@ -1069,6 +1060,22 @@ fn a_gel_at_rest_keeps_its_factor_without_a_ceiling() {
         background >= 2,
         "the ceiling refreshes the resting gel: {background}"
     );
+}
+
+/// [`background_box`] with the scenes' pipeline of 2 and adaptive refresh (θ = 0.05 rad) and
+/// the given ceiling.
+fn adaptive_box(ceiling: usize) -> (TetMesh, Vec<usize>, GelParams) {
+    let (mesh, bottom, params) = background_box();
+    let params = GelParams {
+        background_factorization: true,
+        refactor_every: 2,
+        refresh: Some(RefreshParams {
+            rotation: 0.05,
+            ceiling,
+        }),
+        ..params
+    };
+    (mesh, bottom, params)
 }
 
 fn background_box() -> (TetMesh, Vec<usize>, GelParams) {
@@ -1099,4 +1106,74 @@ fn same_equilibrium(model: &mut GelModel, f: &[f64], params: &GelParams) {
         .map(|(a, b)| (a - b).norm())
         .fold(0.0, f64::max);
     assert!(diff < 1e-8, "equilibria differ by {diff:e} mm");
+}
+
+/// `F = I + (D_s − D_m) D_m⁻¹`: at the rest positions every deformation gradient is exactly
+/// the identity and the internal force exactly zero. With `F = D_s D_m⁻¹` a gel at rest 300 mm
+/// from the origin had forces of 10⁻¹⁵ N from round-off, its free motion moved it by as
+/// much, and no step in the air could be recognised as a repeat.
+#[test]
+fn a_gel_at_its_rest_positions_has_exactly_zero_internal_force() {
+    let mesh = box_mesh(
+        Vector3::new(260.0, -30.0, 0.0),
+        Vector3::new(340.0, 30.0, 60.0),
+        600,
+    );
+    let tetra = CorotationalTetra::try_new(&mesh, &GEL, Kinematics::Corotational).unwrap();
+    for e in 0..tetra.len() {
+        assert_eq!(
+            tetra.deformation_gradient(e, &mesh.nodes),
+            Matrix3::identity(),
+            "element {e}"
+        );
+    }
+    let mut model = GelModel::try_new(mesh, &[], &GelParams::default()).unwrap();
+    let f = model.compute_internal_forces();
+    assert!(f.iter().all(|&v| v == 0.0), "a force at rest");
+}
+
+/// The free motion of a gel at rest is the last one, repeated without an element pass or a
+/// solve, as long as the positions and the factor are the same; any change of either solves
+/// again, and what a repeat returns is what the solve would give, bit for bit.
+#[test]
+fn a_gel_at_rest_repeats_its_free_motion_without_a_solve() {
+    // The scenes' default pipeline: a factor is refreshed only when an element has rotated.
+    let (mesh, bottom, params) = adaptive_box(usize::MAX);
+    let mut model = GelModel::try_new(mesh.clone(), &bottom, &params).unwrap();
+    for step in 0..20 {
+        let dx = model.free_motion_unloaded().unwrap();
+        assert!(dx.iter().all(|&v| v == 0.0), "step {step}: moved at rest");
+        assert_eq!(model.repeated_free_motions(), step, "step {step}");
+    }
+    // A node pushed (too little to refresh the factor): the gel is no longer at rest, and
+    // the step solves.
+    let top = (0..mesh.nodes.len())
+        .max_by(|&a, &b| mesh.nodes[a].z.total_cmp(&mesh.nodes[b].z))
+        .unwrap();
+    model.positions_mut()[top].z -= 0.05;
+    let pushed = model.positions().to_vec();
+    let first = model.free_motion_unloaded().unwrap().to_vec();
+    assert_eq!(model.repeated_free_motions(), 19);
+    assert!(first.iter().any(|&v| v != 0.0));
+    // Held there (the same positions, the same factor): repeats, bit for bit.
+    let again = model.free_motion_unloaded().unwrap().to_vec();
+    assert_eq!(model.repeated_free_motions(), 20);
+    assert_eq!(again, first);
+    // A new factor: solves again, and gives what a solve gives.
+    model.request_refactor();
+    let refactored = model.free_motion_unloaded().unwrap().to_vec();
+    assert_eq!(
+        model.repeated_free_motions(),
+        20,
+        "a repeat with a new factor"
+    );
+    let mut fresh = GelModel::try_new(mesh, &bottom, &params).unwrap();
+    fresh.positions_mut().copy_from_slice(&pushed);
+    let solved = fresh.free_motion_unloaded().unwrap().to_vec();
+    assert_eq!(refactored, solved);
+    // A loaded free motion is never a repeat.
+    let zero = vec![0.0; model.dof_count()];
+    model.free_motion(&zero).unwrap();
+    model.free_motion(&zero).unwrap();
+    assert_eq!(model.repeated_free_motions(), 20);
 }

@@ -410,6 +410,8 @@ pub struct CorotationalTetra {
     /// Lamé constants `[λ, μ]` of each element [MPa] (one material per region of the mesh).
     lame: Vec<[f64; 2]>,
     tets: Vec<[usize; 4]>,
+    /// Rest edge matrix `D_m` [mm].
+    dm: Vec<Matrix3<f64>>,
     /// Inverse rest edge matrix `D_m⁻¹` [1/mm].
     dm_inv: Vec<Matrix3<f64>>,
     /// Rest volumes [mm³].
@@ -460,6 +462,7 @@ impl CorotationalTetra {
             lame.push([lambda, mu]);
         }
         let m = mesh.tets.len();
+        let mut dm_all = Vec::with_capacity(m);
         let mut dm_inv = Vec::with_capacity(m);
         let mut volumes = Vec::with_capacity(m);
         let mut grads = Vec::with_capacity(m);
@@ -479,6 +482,7 @@ impl CorotationalTetra {
                 inv.row(2).transpose(),
             );
             let g = [-(g1 + g2 + g3), g1, g2, g3];
+            dm_all.push(dm);
             dm_inv.push(inv);
             volumes.push(dm.determinant() / 6.0);
             grads.push(g);
@@ -487,6 +491,7 @@ impl CorotationalTetra {
             kinematics,
             lame,
             tets: mesh.tets.clone(),
+            dm: dm_all,
             dm_inv,
             volumes,
             grads,
@@ -561,13 +566,16 @@ impl CorotationalTetra {
         k
     }
 
-    /// Deformation gradient `F = D_s D_m⁻¹` of element `e` at positions `x` [mm].
+    /// Deformation gradient `F = D_s D_m⁻¹` of element `e` at positions `x` [mm], computed
+    /// as `I + (D_s − D_m) D_m⁻¹`: exactly `I` at the rest positions (`D_m D_m⁻¹` is `I` only
+    /// to round-off), so a gel at rest has exactly zero strain and internal force, and a small
+    /// strain is not the difference of two numbers near 1.
     #[inline]
     pub fn deformation_gradient(&self, e: usize, x: &[Vector3<f64>]) -> Matrix3<f64> {
         let t = self.tets[e];
         let x0 = x[t[0]];
         let ds = Matrix3::from_columns(&[x[t[1]] - x0, x[t[2]] - x0, x[t[3]] - x0]);
-        ds * self.dm_inv[e]
+        Matrix3::identity() + (ds - self.dm[e]) * self.dm_inv[e]
     }
 
     /// Strain state of the mesh at positions `x`: the largest principal strain `|σᵢ(F) − 1|`

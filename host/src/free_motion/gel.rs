@@ -100,6 +100,7 @@ pub struct Tets {
 
 impl Elements for Tets {
     const NODE_DOFS: usize = 3;
+    const STATE_OF_POSITIONS: bool = true;
 
     fn add_internal_forces(&mut self, positions: &[Vector3<f64>], f_int: &mut [f64]) {
         self.tetra

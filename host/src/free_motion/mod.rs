@@ -94,6 +94,13 @@ pub trait Elements {
     /// increment [rad]).
     const NODE_DOFS: usize;
 
+    /// Whether [`Elements::add_internal_forces`] is a function of the node positions alone
+    /// (the tetrahedra: yes; the beams also carry node orientations). Then a model whose
+    /// positions are bit for bit those of its last element pass skips the pass, and an
+    /// unloaded free motion with the same factor is the last one (see
+    /// [`FeModel::free_motion_unloaded`]).
+    const STATE_OF_POSITIONS: bool = false;
+
     /// Updates the element frames at the node `positions` [mm] and adds the internal forces
     /// `f_int(x)` (`NODE_DOFS` per node) [N, N·mm] into `f_int`, which the caller zeroed.
     fn add_internal_forces(&mut self, positions: &[Vector3<f64>], f_int: &mut [f64]);
@@ -133,6 +140,14 @@ pub struct FeModel<E: Elements> {
     dx: Vec<f64>,
     /// Background mode: the rotation guard.
     lag: Option<LagGuard>,
+    /// With [`Elements::STATE_OF_POSITIONS`]: the positions of the last element pass (empty
+    /// before it), to skip a pass at the same positions.
+    pass_positions: Vec<Vector3<f64>>,
+    /// The stamp of the factor the last unloaded free motion `dx` was solved with, while the
+    /// element state it was solved from is still current (`None`: no such solve).
+    unloaded_solve: Option<u64>,
+    /// Unloaded free motions that repeated the last one without a solve.
+    repeated: u64,
 }
 
 /// Which dofs a model fixes, its regularisation, and its system settings.
@@ -190,6 +205,9 @@ impl<E: Elements> FeModel<E> {
             f_int: vec![0.0; d * n],
             dx: vec![0.0; d * n],
             lag,
+            pass_positions: Vec::new(),
+            unloaded_solve: None,
+            repeated: 0,
         })
     }
 
@@ -285,10 +303,26 @@ impl<E: Elements> FeModel<E> {
     /// Updates the element frames and returns the internal forces `f_int(x)` at the current
     /// positions (including at fixed nodes, where they are the reactions) [N, N·mm].
     pub fn compute_internal_forces(&mut self) -> &[f64] {
+        self.update_elements();
+        &self.f_int
+    }
+
+    /// The element pass: element frames and `f_int` at the current positions, skipped when
+    /// the state is a function of the positions and they are bit for bit those of the last
+    /// pass (its frames and forces are then exactly what the pass would give). Returns
+    /// whether it ran.
+    fn update_elements(&mut self) -> bool {
+        if E::STATE_OF_POSITIONS && same_bits(&self.pass_positions, &self.positions) {
+            return false;
+        }
         self.f_int.iter_mut().for_each(|v| *v = 0.0);
         self.elements
             .add_internal_forces(&self.positions, &mut self.f_int);
-        &self.f_int
+        if E::STATE_OF_POSITIONS {
+            self.pass_positions.clone_from(&self.positions);
+        }
+        self.unloaded_solve = None;
+        true
     }
 
     /// Element update and assembly: internal forces and the values of `K(x) + M/h²` written
@@ -334,6 +368,14 @@ impl<E: Elements> FeModel<E> {
     /// [`FeModel::free_motion`] without external load (the needle and the gel of an insertion:
     /// every force comes through the constraints).
     ///
+    /// For the gel ([`Elements::STATE_OF_POSITIONS`]), in the direct mode: when the positions
+    /// are bit for bit those of the last unloaded free motion and the factor in use is the
+    /// same, the right-hand side `−f_int(x)` and the solve are the same too, and the last
+    /// `Δx_free` is returned without an element pass or a solve
+    /// ([`FeModel::repeated_free_motions`] counts them). The factor's pipeline still counts the
+    /// step. A gel at its rest positions has exactly zero internal force, so before the needle
+    /// touches it every step is such a repeat.
+    ///
     /// # Errors
     /// A failed factorisation, or a stopped background thread.
     pub fn free_motion_unloaded(&mut self) -> Result<&[f64], FemError> {
@@ -341,12 +383,15 @@ impl<E: Elements> FeModel<E> {
     }
 
     fn free_motion_with(&mut self, f_ext: Option<&[f64]>) -> Result<&[f64], FemError> {
-        self.compute_internal_forces();
-        for (i, (d, fi)) in self.dx.iter_mut().zip(&self.f_int).enumerate() {
-            *d = f_ext.map_or(0.0, |f| f[i]) - fi;
-        }
+        self.update_elements();
+        // What `dx` holds was solved from this state's `f_int` unloaded; it is overwritten
+        // below unless that solve is found to repeat.
+        let repeat_of = self.unloaded_solve.take().filter(|_| f_ext.is_none());
         let (elements, slots, lag) = (&self.elements, &self.slots, &mut self.lag);
         if self.sys.pcg.is_some() {
+            for (i, (d, fi)) in self.dx.iter_mut().zip(&self.f_int).enumerate() {
+                *d = f_ext.map_or(0.0, |f| f[i]) - fi;
+            }
             self.sys
                 .solve_step_pcg(|v| elements.assemble(slots, v), &mut self.dx)?;
             return Ok(&self.dx);
@@ -362,7 +407,21 @@ impl<E: Elements> FeModel<E> {
             g.record(event, self.elements.rotations());
         }
         self.sys.stage_refine(|v| elements.assemble(slots, v));
+        let stamp = self.sys.factor_stamp();
+        if repeat_of == Some(stamp) && self.sys.refine.is_none() {
+            // The same right-hand side `−f_int` (the same positions) and the same factor:
+            // the solve would repeat the last one bit for bit (a gel at rest in the air).
+            self.unloaded_solve = repeat_of;
+            self.repeated += 1;
+            return Ok(&self.dx);
+        }
+        for (i, (d, fi)) in self.dx.iter_mut().zip(&self.f_int).enumerate() {
+            *d = f_ext.map_or(0.0, |f| f[i]) - fi;
+        }
         self.sys.solve_global(&mut self.dx)?;
+        if f_ext.is_none() && E::STATE_OF_POSITIONS {
+            self.unloaded_solve = Some(stamp);
+        }
         Ok(&self.dx)
     }
 
@@ -379,6 +438,14 @@ impl<E: Elements> FeModel<E> {
         }
         check_vec("step", dx, self.dof_count())?;
         self.sys.refine_step(dx)
+    }
+
+    /// How many unloaded free motions were the last one repeated, without an element pass or
+    /// a solve: the positions were bit for bit those of the last solve and the factor the
+    /// same (a gel at rest before the needle reaches it; only for elements whose state is a
+    /// function of the positions, [`Elements::STATE_OF_POSITIONS`], in the direct mode).
+    pub fn repeated_free_motions(&self) -> u64 {
+        self.repeated
     }
 
     /// The last `Δx_free`.
@@ -416,6 +483,14 @@ impl<E: Elements> FeModel<E> {
             .displace(&mut self.positions, dx, &|g| sys.is_free(g));
         Ok(())
     }
+}
+
+/// Whether two position lists are equal bit for bit (a NaN equals itself, −0 differs from 0).
+fn same_bits(a: &[Vector3<f64>], b: &[Vector3<f64>]) -> bool {
+    a.len() == b.len()
+        && a.iter()
+            .zip(b)
+            .all(|(p, q)| (0..3).all(|k| p[k].to_bits() == q[k].to_bits()))
 }
 
 fn check_vec(what: &'static str, v: &[f64], expected: usize) -> Result<(), FemError> {

@@ -654,6 +654,11 @@ impl ReducedSystem {
         Ok(())
     }
 
+    /// The stamp of the factor in use ([`crate::linalg::Cholesky::stamp`]).
+    pub fn factor_stamp(&self) -> u64 {
+        self.chol.stamp()
+    }
+
     /// Solves in place over global dofs (fixed entries set to zero).
     pub fn solve_global(&mut self, rhs: &mut [f64]) -> Result<(), FemError> {
         for (k, &g) in self.free.iter().enumerate() {
