@@ -153,6 +153,60 @@ impl PointColumns {
 
 /// The right-hand sides `Pᵀ` of `maps`, three column-major columns of length `n` per point, one
 /// point after the other.
+/// The Cartesian columns of single 3-dof blocks (the nodes of a model), computed on demand and
+/// kept while the factor they were solved with is in use: the columns of a point that moves
+/// over a few nodes (the tip's contact point on the gel's surface, whose weights change every
+/// step) are then sums of kept node columns, with no solve until the point reaches a new node
+/// or the factor changes.
+#[derive(Clone, Debug, Default)]
+pub struct NodeColumns {
+    /// `(block, columns)` of every node solved with the factor of `stamp`.
+    nodes: Vec<(usize, PointColumns)>,
+    /// The factor the columns were solved with ([`crate::linalg::Cholesky::stamp`]).
+    stamp: u64,
+}
+
+impl NodeColumns {
+    /// The columns of `map`, `Σ_k w_k U_k` over its blocks' node columns `U_k` (those missing
+    /// solved together with `solve_many`), for a factor of stamp `stamp` (the kept columns of
+    /// another factor are dropped first). Returns the columns and how many nodes were solved.
+    ///
+    /// # Errors
+    /// Whatever the solver returns.
+    pub fn point<E>(
+        &mut self,
+        map: &PointMap,
+        n: usize,
+        stamp: u64,
+        solve_many: impl FnOnce(&mut [f64], usize) -> Result<(), E>,
+    ) -> Result<(PointColumns, usize), E> {
+        if stamp != self.stamp || self.nodes.first().is_some_and(|(_, c)| c.n != n) {
+            self.nodes.clear();
+            self.stamp = stamp;
+        }
+        let missing: Vec<PointMap> = map
+            .used()
+            .iter()
+            .filter(|(b, _)| !self.nodes.iter().any(|(kept, _)| kept == b))
+            .map(|&(b, _)| PointMap::single(b))
+            .collect();
+        if !missing.is_empty() {
+            let cols = PointColumns::compute_batch(&missing, n, solve_many)?;
+            self.nodes
+                .extend(missing.iter().map(|m| m.blocks[0].0).zip(cols));
+        }
+        let mut data = vec![0.0; 3 * n];
+        for &(b, w) in map.used() {
+            if let Some((_, u)) = self.nodes.iter().find(|(kept, _)| *kept == b) {
+                for (d, v) in data.iter_mut().zip(&u.data) {
+                    *d += w * v;
+                }
+            }
+        }
+        Ok((PointColumns { data, n }, missing.len()))
+    }
+}
+
 fn unit_loads(maps: &[PointMap], n: usize) -> Vec<f64> {
     let mut rhs = vec![0.0; 3 * n * maps.len()];
     for (cols, map) in rhs.chunks_exact_mut(3 * n).zip(maps) {
@@ -225,5 +279,60 @@ mod tests {
         let lhs = DVector::from_vec(s).dot(&y);
         let rhs = p.apply(y.as_slice()).dot(&f);
         assert!((lhs - rhs).abs() < 1e-12);
+    }
+
+    /// A point moving over the same nodes (the tip's contact point) needs no solve while the
+    /// factor is the same; its columns are those of a direct solve to round-off; a new node
+    /// solves that node alone, and a new factor solves again.
+    #[test]
+    fn node_columns_give_a_moving_points_columns_with_no_new_solve() {
+        let n = 15;
+        let kinv = spd(n).try_inverse().unwrap();
+        let solved = std::cell::Cell::new(0);
+        let solve = |rhs: &mut [f64], cols: usize| -> Result<(), ()> {
+            solved.set(solved.get() + cols);
+            for c in 0..cols {
+                let b = DVector::from_column_slice(&rhs[c * n..(c + 1) * n]);
+                rhs[c * n..(c + 1) * n].copy_from_slice((&kinv * b).as_slice());
+            }
+            Ok(())
+        };
+        let mut nodes = NodeColumns::default();
+        let on =
+            |w: [f64; 3]| PointMap::weighted([(Some(0), w[0]), (Some(6), w[1]), (Some(9), w[2])]);
+        let close = |a: &PointColumns, map: &PointMap| {
+            let direct = PointColumns::compute(map, n, |r: &mut [f64], c| -> Result<(), ()> {
+                for k in 0..c {
+                    let b = DVector::from_column_slice(&r[k * n..(k + 1) * n]);
+                    r[k * n..(k + 1) * n].copy_from_slice((&kinv * b).as_slice());
+                }
+                Ok(())
+            })
+            .unwrap();
+            let err = a
+                .data
+                .iter()
+                .zip(&direct.data)
+                .map(|(x, y)| (x - y).abs())
+                .fold(0.0, f64::max);
+            assert!(err < 1e-15, "off the direct solve by {err:e}");
+        };
+        let first = on([0.2, 0.3, 0.5]);
+        let (cols, solved_nodes) = nodes.point(&first, n, 7, solve).unwrap();
+        assert_eq!((solved_nodes, solved.get()), (3, 9));
+        close(&cols, &first);
+        // The point moves inside the same triangle: no solve.
+        let moved = on([0.25, 0.35, 0.4]);
+        let (cols, solved_nodes) = nodes.point(&moved, n, 7, solve).unwrap();
+        assert_eq!((solved_nodes, solved.get()), (0, 9));
+        close(&cols, &moved);
+        // Onto a neighbour sharing two nodes: one node solved.
+        let next = PointMap::weighted([(Some(6), 0.5), (Some(9), 0.3), (Some(12), 0.2)]);
+        let (cols, solved_nodes) = nodes.point(&next, n, 7, solve).unwrap();
+        assert_eq!((solved_nodes, solved.get()), (1, 12));
+        close(&cols, &next);
+        // A new factor: the kept columns are not used.
+        let (_, solved_nodes) = nodes.point(&moved, n, 8, solve).unwrap();
+        assert_eq!((solved_nodes, solved.get()), (3, 21));
     }
 }

@@ -262,6 +262,12 @@ impl<E: Elements> FeModel<E> {
         self.sys.is_free(g).then_some(g)
     }
 
+    /// The identity of the factor in use ([`crate::linalg::Cholesky::stamp`]): equal stamps,
+    /// the same factor.
+    pub fn factor_stamp(&self) -> u64 {
+        self.sys.factor_stamp()
+    }
+
     /// Steps since the last numeric factorisation (`None` before the first).
     pub fn factor_age(&self) -> Option<usize> {
         self.sys.factor_age

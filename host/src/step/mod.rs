@@ -35,8 +35,8 @@ pub mod rows;
 pub use correct::ConstraintForce;
 pub use params::{Insertion, Interaction, StepParams, TargetMotion};
 
-use crate::compliance::PointColumns;
-use crate::constraints::{ConstraintSet, GroupRole};
+use crate::compliance::{NodeColumns, PointColumns};
+use crate::constraints::{ConstraintSet, GroupRole, Model};
 use crate::error::{Body, CommandMismatch, NonFiniteAt, SimError};
 use crate::joints::{Joints, MAX_JOINTS, normalised_limit_margin};
 use crate::proximity::Embedded;
@@ -157,6 +157,8 @@ pub struct Pipeline<const N: usize = 6> {
     free: FreePositions,
     /// Gel columns of sliding points by id, kept from one step to the next.
     columns: Vec<(usize, PointColumns)>,
+    /// Gel columns of the nodes under the tip's contact point, kept while the factor is.
+    contact_nodes: NodeColumns,
     /// The stage times of the last step.
     pub times: StageTimes,
 }
@@ -183,6 +185,7 @@ impl<const N: usize> Pipeline<N> {
                 needle: vec![Vector3::zeros(); world.needle.node_count()],
             },
             columns: Vec::new(),
+            contact_nodes: NodeColumns::default(),
             times: StageTimes::default(),
         }
     }
@@ -346,6 +349,21 @@ impl<const N: usize> Pipeline<N> {
             .compute_missing(nn, |r, k| needle.solve_columns(r, k))
             .map_err(SimError::in_compliance(Body::Needle))?;
         let gel = &mut world.gel;
+        // The contact point's weights change every step: its columns are sums of its nodes'.
+        let contact = (self.set.groups.iter())
+            .filter(|g| g.role == GroupRole::Contact)
+            .flat_map(|g| &g.attachments)
+            .find(|a| a.model == Model::Gel)
+            .map(|a| a.point);
+        if let Some(p) = contact.filter(|&p| self.set.gel.points[p].cols.is_none()) {
+            let map = self.set.gel.points[p].map;
+            let stamp = gel.factor_stamp();
+            let (cols, _) = self
+                .contact_nodes
+                .point(&map, ng, stamp, |r, k| gel.solve_columns(r, k))
+                .map_err(SimError::in_compliance(Body::Gel))?;
+            self.set.gel.points[p].cols = Some(cols);
+        }
         self.set
             .gel
             .compute_missing(ng, |r, k| gel.solve_columns(r, k))
