@@ -35,10 +35,27 @@ fn against_synchronous(gel_solve: &str) -> (RunResult, RunResult, f64, f64) {
     )
     .unwrap();
     assert_eq!(sync.reports.len(), other.reports.len());
+    // The puncture is a threshold on the contact force (0.195 N at step 112 of the simple
+    // insertion, 0.210 N at step 113, against 0.2 N): another valid compliance may cross it a
+    // step earlier or later, and the step of the puncture carries the tip's jump through the
+    // dimple (error 1.26 mm there, 0.004 mm the step after). Those steps are compared by when
+    // they come (at most one step apart), not by their error (a CI run under load: the CG
+    // run punctured a step off, its errors 1.2563 mm apart at that step alone).
+    let punctured = |r: &RunResult| r.reports.iter().position(|s| s.punctured_now);
+    let (pa, pb) = (punctured(&sync), punctured(&other));
+    let skip = match (pa, pb) {
+        (Some(a), Some(b)) => {
+            assert!(a.abs_diff(b) <= 1, "punctured at steps {a} and {b}");
+            a.min(b)..=a.max(b)
+        }
+        _ => panic!("no puncture within the steps: {pa:?}, {pb:?}"),
+    };
     let (mut tip, mut err) = (0.0f64, 0.0f64);
-    for (a, b) in sync.reports.iter().zip(&other.reports) {
+    for (k, (a, b)) in sync.reports.iter().zip(&other.reports).enumerate() {
         tip = tip.max((a.tip - b.tip).norm());
-        err = err.max((a.error - b.error).abs());
+        if !skip.contains(&k) || pa == pb {
+            err = err.max((a.error - b.error).abs());
+        }
     }
     let s = &other.summary;
     println!(
