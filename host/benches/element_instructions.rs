@@ -7,8 +7,9 @@
 //! - `gel_element_pass_1500_nodes`: the gel's per-step element pass on the benchmark box (1485
 //!   nodes, 6720 elements, seeded ±0.06 mm displacement): every element's rotation (polar
 //!   decomposition, eight per SIMD pass) and internal force.
-//! - `needle_free_motion_40_beams`: one free motion of the 40-beam needle under a tip load
-//!   (beam energies differentiated twice by hyperduals, assembly, factorisation, solve).
+//! - `needle_free_motion_40_beams`: one free motion of the 40-beam needle under a tip load, as
+//!   a run makes it (beam energies differentiated once for the forces and the material
+//!   stiffness, assembly, factorisation, solve).
 //!
 //! Valgrind reports no AVX-512, so the counts are those of the AVX2 code path.
 

@@ -12,7 +12,8 @@
 //!   gradients) of the whole gel, eight elements per SIMD pass; `…_scalar`: one by one, the same
 //!   rotations bit for bit; `polar/update_and_forces_<n>_nodes`: the rotations and the internal
 //!   forces of every element (the gel's per-step element pass);
-//! - `free_motion_needle_40_beams`: one full needle step (forces, Hessians, factor, solve).
+//! - `free_motion_needle_40_beams`: one full needle step as a run makes it (forces and
+//!   material stiffness by first-order differentiation, factor, solve).
 //!
 //! Run: `cargo bench -p needle-host --bench free_motion` (add `-- --quick` for a fast pass).
 //! Instruction counts of the element pass and the needle step: `element_instructions.rs`.

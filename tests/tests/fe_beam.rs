@@ -328,3 +328,43 @@ fn needle_update_is_applied_as_a_world_frame_rotation_vector() {
     assert_eq!(needle.positions()[2].x, 10.5);
     assert_eq!(needle.positions()[0].x, 0.0);
 }
+
+#[test]
+fn material_state_is_the_full_states_energy_force_and_material_stiffness_bit_for_bit() {
+    // The first-order state (no Hessian) that a step without geometric stiffness computes: its
+    // energy, force and material stiffness are the full hyperdual state's to the last bit, on
+    // configurations from the rest pose to large local rotations.
+    let (beams, x0, q0) = deformed();
+    let mut seed = 17u64;
+    let mut next = || {
+        seed = seed
+            .wrapping_mul(6_364_136_223_846_793_005)
+            .wrapping_add(1_442_695_040_888_963_407);
+        (seed >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+    };
+    let same = |a: f64, b: f64| a.to_bits() == b.to_bits() || (a == 0.0 && b == 0.0);
+    for k in 0..200 {
+        let amp = if k == 0 { 0.0 } else { 0.3 * next().abs() };
+        let x: Vec<Vector3<f64>> = (x0.iter())
+            .map(|p| p + Vector3::new(next(), next(), next()) * amp)
+            .collect();
+        let q: Vec<UnitQuaternion<f64>> = (q0.iter())
+            .map(|o| {
+                UnitQuaternion::from_scaled_axis(Vector3::new(next(), next(), next()) * amp) * o
+            })
+            .collect();
+        let full = beams.element_state(0, &x, &q);
+        let first = beams.element_state_material(0, &x, &q);
+        assert!(same(full.energy, first.energy), "energy, sample {k}");
+        for i in 0..12 {
+            assert!(same(full.force[i], first.force[i]), "force {i}, sample {k}");
+            for j in 0..12 {
+                assert!(
+                    same(full.material[(i, j)], first.material[(i, j)]),
+                    "material ({i}, {j}), sample {k}"
+                );
+            }
+        }
+        assert!(first.hessian.iter().all(|&h| h == 0.0));
+    }
+}

@@ -32,7 +32,7 @@
 // Negated comparisons are deliberate: NaN must fail every validity check.
 #![allow(clippy::neg_cmp_op_on_partial_ord, clippy::nonminimal_bool)]
 
-use super::hyperdual::{self, Hd, V3};
+use super::hyperdual::{self, Ad, D1, Hd, V3};
 use super::{Elasticity, FemError};
 use nalgebra::{Matrix3, SMatrix, SVector, UnitQuaternion, Vector3};
 
@@ -105,7 +105,8 @@ pub struct BeamElementState {
     pub energy: f64,
     /// Internal force `∂Π/∂d`, dof order `[x₁, θ₁, x₂, θ₂]` [N, N·mm].
     pub force: SVector<f64, 12>,
-    /// Symmetric Hessian `∂²Π/∂d²` (the assembled tangent by default) [N/mm, N, N·mm/rad].
+    /// Symmetric Hessian `∂²Π/∂d²` (the assembled tangent by default) [N/mm, N, N·mm/rad];
+    /// zero from [`CorotationalBeams::element_state_material`].
     pub hessian: SMatrix<f64, 12, 12>,
     /// Material part of the Hessian, `Bᵀ K_l B` with `B = ∂u/∂d` the derivative of the local
     /// deformations `u` and `K_l` the linear local beam stiffness: the corotational stiffness
@@ -249,12 +250,12 @@ impl CorotationalBeams {
     /// The corotational kinematics of element `e` as hyperdual functions of its 9 variables
     /// (relative translation, rotation of each end): the current length [mm] and the local end
     /// rotations `θ_1`, `θ_2` [rad] in the corotated frame.
-    fn local_kinematics(
+    fn local_kinematics<T: Ad>(
         &self,
         e: usize,
         x: &[Vector3<f64>],
         q: &[UnitQuaternion<f64>],
-    ) -> (Hd, [V3; 2]) {
+    ) -> (T, [V3<T>; 2]) {
         let [a, b] = self.elements[e];
         let d0 = x[b] - x[a];
         let ends = [
@@ -262,9 +263,9 @@ impl CorotationalBeams {
             q[b].to_rotation_matrix().into_inner() * self.offsets[e][1],
         ];
         // Variables: z0..3 relative translation, z3..6 rotation of end 1, z6..9 rotation of end 2.
-        let d: V3 = std::array::from_fn(|i| Hd::var(d0[i], i));
+        let d: V3<T> = std::array::from_fn(|i| T::var(d0[i], i));
         // T_i(ω) = (I + W + ½W²) A_i, column by column, at ω = 0 with its exact derivatives.
-        let t: [[V3; 3]; 2] = std::array::from_fn(|i| {
+        let t: [[V3<T>; 3]; 2] = std::array::from_fn(|i| {
             std::array::from_fn(|k| {
                 let col = ends[i].column(k);
                 hyperdual::rotated_column(&[col[0], col[1], col[2]], 3 + 3 * i)
@@ -279,10 +280,10 @@ impl CorotationalBeams {
         let r3 = hyperdual::scale(&r3u, hyperdual::dot(&r3u, &r3u).sqrt().recip());
         let r2 = hyperdual::cross(&r3, &e1);
         let frame = [e1, r2, r3];
-        let theta: [V3; 2] = std::array::from_fn(|i| {
+        let theta: [V3<T>; 2] = std::array::from_fn(|i| {
             // `t[i]` depends on end i's rotation variables alone.
             let rb = |r: usize, c: usize| hyperdual::dot_local(&frame[r], &t[i][c], 3 + 3 * i);
-            let v: V3 = [
+            let v: V3<T> = [
                 (rb(2, 1) - rb(1, 2)) * 0.5,
                 (rb(0, 2) - rb(2, 0)) * 0.5,
                 (rb(1, 0) - rb(0, 1)) * 0.5,
@@ -297,15 +298,15 @@ impl CorotationalBeams {
         (l, theta)
     }
 
-    /// Energy, internal force and symmetric Hessian of element `e` at node positions `x` [mm]
-    /// and orientations `q`.
-    pub fn element_state(
+    /// The energy and the local deformations `u = (Δℓ, twist, θ̄₁y, θ̄₂y, θ̄₁z, θ̄₂z)` of element
+    /// `e` as functions of its 9 variables, to the order `T` carries.
+    fn energy_and_deformations<T: Ad>(
         &self,
         e: usize,
         x: &[Vector3<f64>],
         q: &[UnitQuaternion<f64>],
-    ) -> BeamElementState {
-        let (l, theta) = self.local_kinematics(e, x, q);
+    ) -> (T, [T; 6]) {
+        let (l, theta) = self.local_kinematics::<T>(e, x, q);
         let l0 = self.rest_length[e];
         let du = l + (-l0);
         let tw = theta[1][0] - theta[0][0];
@@ -313,8 +314,20 @@ impl CorotationalBeams {
         for (&t1, &t2) in theta[0].iter().zip(&theta[1]).skip(1) {
             energy = energy + (t1 * t1 + t1 * t2 + t2 * t2) * (2.0 * self.ei / l0);
         }
-        // Material stiffness Bᵀ K_l B over the local deformations u = (Δℓ, twist, θ̄₁y, θ̄₂y, θ̄₁z, θ̄₂z).
         let u = [du, tw, theta[0][1], theta[1][1], theta[0][2], theta[1][2]];
+        (energy, u)
+    }
+
+    /// Internal force `∂Π/∂d` and material stiffness `Bᵀ K_l B` from the energy and the local
+    /// deformations (their gradients).
+    fn force_and_material<T: Ad>(
+        &self,
+        e: usize,
+        energy: &T,
+        u: &[T; 6],
+    ) -> (SVector<f64, 12>, SMatrix<f64, 12, 12>) {
+        // Material stiffness Bᵀ K_l B over the local deformations u.
+        let l0 = self.rest_length[e];
         let kb = self.ei / l0;
         let mut kl = SMatrix::<f64, 6, 6>::zeros();
         kl[(0, 0)] = self.ea / l0;
@@ -328,26 +341,65 @@ impl CorotationalBeams {
         let mut bz = SMatrix::<f64, 6, 9>::zeros();
         for (k, uk) in u.iter().enumerate() {
             for z in 0..9 {
-                bz[(k, z)] = uk.g[z];
+                bz[(k, z)] = uk.grad()[z];
             }
         }
         let kz = bz.transpose() * kl * bz;
         let mut force = SVector::<f64, 12>::zeros();
-        let mut hessian = SMatrix::<f64, 12, 12>::zeros();
         let mut material = SMatrix::<f64, 12, 12>::zeros();
         for i in 0..12 {
             let (zi, si) = z_of_d(i);
-            force[i] = si * energy.g[zi];
+            force[i] = si * energy.grad()[zi];
+            for j in 0..12 {
+                let (zj, sj) = z_of_d(j);
+                material[(i, j)] = si * sj * kz[(zi, zj)];
+            }
+        }
+        (force, material)
+    }
+
+    /// Energy, internal force and symmetric Hessian of element `e` at node positions `x` [mm]
+    /// and orientations `q`.
+    pub fn element_state(
+        &self,
+        e: usize,
+        x: &[Vector3<f64>],
+        q: &[UnitQuaternion<f64>],
+    ) -> BeamElementState {
+        let (energy, u) = self.energy_and_deformations::<Hd>(e, x, q);
+        let (force, material) = self.force_and_material(e, &energy, &u);
+        let mut hessian = SMatrix::<f64, 12, 12>::zeros();
+        for i in 0..12 {
+            let (zi, si) = z_of_d(i);
             for j in 0..12 {
                 let (zj, sj) = z_of_d(j);
                 hessian[(i, j)] = si * sj * energy.hess(zi, zj);
-                material[(i, j)] = si * sj * kz[(zi, zj)];
             }
         }
         BeamElementState {
             energy: energy.v,
             force,
             hessian,
+            material,
+        }
+    }
+
+    /// [`CorotationalBeams::element_state`] without the Hessian (left zero): energy, force and
+    /// material stiffness bit for bit the same, by first-order differentiation ([`D1`]), at a
+    /// sixth of the derivative entries. What a step needs when it assembles the material
+    /// stiffness alone.
+    pub fn element_state_material(
+        &self,
+        e: usize,
+        x: &[Vector3<f64>],
+        q: &[UnitQuaternion<f64>],
+    ) -> BeamElementState {
+        let (energy, u) = self.energy_and_deformations::<D1>(e, x, q);
+        let (force, material) = self.force_and_material(e, &energy, &u);
+        BeamElementState {
+            energy: energy.v,
+            force,
+            hessian: SMatrix::zeros(),
             material,
         }
     }
@@ -372,12 +424,18 @@ impl CorotationalBeams {
         k
     }
 
-    /// Evaluates and caches every element's force and Hessian at `x`, `q`; returns the total
-    /// strain energy [N·mm].
+    /// Evaluates and caches every element's force and Hessian at `x`, `q` (without the geometric
+    /// stiffness, [`CorotationalBeams::set_geometric_stiffness`], the Hessian is not computed and
+    /// its cache holds zeros); returns the total strain energy [N·mm].
     pub fn update(&mut self, x: &[Vector3<f64>], q: &[UnitQuaternion<f64>]) -> f64 {
         let mut total = 0.0;
         for e in 0..self.elements.len() {
-            let s = self.element_state(e, x, q);
+            // The Hessian only where the assembly uses it.
+            let s = if self.geometric_stiffness {
+                self.element_state(e, x, q)
+            } else {
+                self.element_state_material(e, x, q)
+            };
             total += s.energy;
             self.states[e] = s;
         }

@@ -1,10 +1,16 @@
-//! Second-order forward-mode automatic differentiation on a fixed number of variables.
+//! Forward-mode automatic differentiation on a fixed number of variables, to second or first
+//! order.
 //!
 //! `Hd` carries a value, its gradient and its (symmetric) Hessian with respect to `N`
 //! independent variables. Arithmetic applies the product and chain rules exactly, so a scalar
 //! function written with `Hd` yields its exact first and second derivatives (no finite
 //! differences). Used by the beam element to obtain internal forces and tangent stiffness from
 //! the element energy.
+//!
+//! `D1` carries the value and the gradient only. Every operation computes a value and a gradient
+//! entry by the same expression as `Hd`'s (which never reads its Hessian for them), so a function
+//! written once for both ([`Ad`]) gives a `D1` bit for bit the value and gradient of the `Hd`, at
+//! a sixth of the entries: what a step needs when it does not use the Hessian.
 
 // `&a * &b` is deliberate: `Hd` is `Copy` but 440 bytes, and the by-value operators copy it.
 #![allow(clippy::op_ref)]
@@ -33,6 +39,44 @@ const PAIRS: [(usize, usize); H] = {
     }
     out
 };
+
+/// A number with derivatives with respect to the `N` variables: [`Hd`] (value, gradient,
+/// Hessian) or [`D1`] (value, gradient). The operations give a `D1` exactly the value and
+/// gradient an `Hd` gets: the same expressions, entry by entry.
+pub(crate) trait Ad:
+    Copy
+    + Add<Output = Self>
+    + Sub<Output = Self>
+    + Mul<Output = Self>
+    + Mul<f64, Output = Self>
+    + Add<f64, Output = Self>
+{
+    /// A constant.
+    fn cst(v: f64) -> Self;
+    /// Variable number `k` with value `v`.
+    fn var(v: f64, k: usize) -> Self;
+    /// The gradient.
+    fn grad(&self) -> &[f64; N];
+    /// `√self`.
+    fn sqrt(self) -> Self;
+    /// `1 / self`.
+    fn recip(self) -> Self;
+    /// `s · self`.
+    fn scale(&self, s: f64) -> Self;
+    /// `self + o`.
+    fn add_ref(&self, o: &Self) -> Self;
+    /// `self · o`.
+    fn mul_ref(&self, o: &Self) -> Self;
+    /// `self + a b`, in place.
+    fn mul_add(&mut self, a: &Self, b: &Self);
+    /// `self − a b`, in place.
+    fn mul_sub(&mut self, a: &Self, b: &Self);
+    /// `self ← a b` (`first`) or `self ← self + a b`, for a `b` of the variables `o..o + 3`
+    /// alone (see [`Hd`]'s `fold_product_local`).
+    fn mul_local(&mut self, a: &Self, b: &Self, o: usize, first: bool);
+    /// Component `j` of [`rotated_column`]`(a, offset)`.
+    fn rotated(a: &[f64; 3], offset: usize, j: usize) -> Self;
+}
 
 /// A value with exact gradient and Hessian with respect to `N` variables. Only the upper
 /// triangle of the symmetric Hessian is stored (packed row by row, [`PAIRS`]); read it with
@@ -240,71 +284,10 @@ impl Mul for Hd {
     }
 }
 
-/// A 3-vector of [`Hd`].
-pub(crate) type V3 = [Hd; 3];
-
-pub(crate) fn dot(a: &V3, b: &V3) -> Hd {
-    let mut r = &a[0] * &b[0];
-    r.mul_add(&a[1], &b[1]);
-    r.mul_add(&a[2], &b[2]);
-    r
-}
-
-/// [`dot`] of `a` with a `b` that depends only on the variables `o..o + 3`
-/// ([`Hd::fold_product_local`]): the same numbers but for the sign of zeros.
-pub(crate) fn dot_local(a: &V3, b: &V3, o: usize) -> Hd {
-    let mut r = Hd::cst(0.0);
-    r.fold_product_local(&a[0], &b[0], o, |_, p| p);
-    r.fold_product_local(&a[1], &b[1], o, |s, p| s + p);
-    r.fold_product_local(&a[2], &b[2], o, |s, p| s + p);
-    r
-}
-
-/// `x y − z w`.
-fn mul_minus_mul(x: &Hd, y: &Hd, z: &Hd, w: &Hd) -> Hd {
-    let mut r = x * y;
-    r.mul_sub(z, w);
-    r
-}
-
-pub(crate) fn cross(a: &V3, b: &V3) -> V3 {
-    [
-        mul_minus_mul(&a[1], &b[2], &a[2], &b[1]),
-        mul_minus_mul(&a[2], &b[0], &a[0], &b[2]),
-        mul_minus_mul(&a[0], &b[1], &a[1], &b[0]),
-    ]
-}
-
-pub(crate) fn add(a: &V3, b: &V3) -> V3 {
-    [&a[0] + &b[0], &a[1] + &b[1], &a[2] + &b[2]]
-}
-
-pub(crate) fn scale(a: &V3, s: Hd) -> V3 {
-    [&a[0] * &s, &a[1] * &s, &a[2] * &s]
-}
-
-pub(crate) fn scale_f(a: &V3, s: f64) -> V3 {
-    [a[0].scale(s), a[1].scale(s), a[2].scale(s)]
-}
-
-/// Cross product of a variable vector with a constant vector.
-#[cfg(test)]
-pub(crate) fn cross_c(a: &V3, b: &[f64; 3]) -> V3 {
-    [
-        a[1].scale(b[2]) - a[2].scale(b[1]),
-        a[2].scale(b[0]) - a[0].scale(b[2]),
-        a[0].scale(b[1]) - a[1].scale(b[0]),
-    ]
-}
-
-/// `(I + W + ½W²) a` for a constant `a`, `W = [ω]×`, as functions of the variables
-/// `ω = offset..offset + 3` at `ω = 0`: the value `a`, the gradient `∂(ω × a)/∂ω` and the
-/// Hessian `½ ∂²(ω × (ω × a))/∂ω²`, written directly — the numbers the operators give for
-/// `a + ω × a + ½ ω × (ω × a)` (every entry a single `±a_q` or `½ a_q`, so no rounding either
-/// way), without their 18 products of 440-byte values.
-pub(crate) fn rotated_column(a: &[f64; 3], offset: usize) -> V3 {
-    debug_assert!(offset + 3 <= N);
-    core::array::from_fn(|j| {
+impl Hd {
+    /// Component `j` of [`rotated_column`]`(a, offset)`.
+    fn rotated_component(a: &[f64; 3], offset: usize, j: usize) -> Self {
+        debug_assert!(offset + 3 <= N);
         let mut r = Hd::cst(a[j]);
         // (ω × a)_j = ω_{j+1} a_{j+2} − ω_{j+2} a_{j+1}.
         let (j1, j2) = ((j + 1) % 3, (j + 2) % 3);
@@ -327,7 +310,261 @@ pub(crate) fn rotated_column(a: &[f64; 3], offset: usize) -> V3 {
             }
         }
         r
-    })
+    }
+}
+
+impl Ad for Hd {
+    fn cst(v: f64) -> Self {
+        Hd::cst(v)
+    }
+    fn var(v: f64, k: usize) -> Self {
+        Hd::var(v, k)
+    }
+    fn grad(&self) -> &[f64; N] {
+        &self.g
+    }
+    fn sqrt(self) -> Self {
+        Hd::sqrt(self)
+    }
+    fn recip(self) -> Self {
+        Hd::recip(self)
+    }
+    fn scale(&self, s: f64) -> Self {
+        Hd::scale(self, s)
+    }
+    fn add_ref(&self, o: &Self) -> Self {
+        self + o
+    }
+    fn mul_ref(&self, o: &Self) -> Self {
+        self * o
+    }
+    fn mul_add(&mut self, a: &Self, b: &Self) {
+        Hd::mul_add(self, a, b);
+    }
+    fn mul_sub(&mut self, a: &Self, b: &Self) {
+        Hd::mul_sub(self, a, b);
+    }
+    fn mul_local(&mut self, a: &Self, b: &Self, o: usize, first: bool) {
+        if first {
+            self.fold_product_local(a, b, o, |_, p| p);
+        } else {
+            self.fold_product_local(a, b, o, |s, p| s + p);
+        }
+    }
+    fn rotated(a: &[f64; 3], offset: usize, j: usize) -> Self {
+        Hd::rotated_component(a, offset, j)
+    }
+}
+
+/// A value with its exact gradient with respect to `N` variables: [`Hd`] without the Hessian.
+/// Each operation computes the value and every gradient entry by the expression [`Hd`]'s uses.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct D1 {
+    pub v: f64,
+    pub g: [f64; N],
+}
+
+impl D1 {
+    /// [`Hd::fold_product`]'s value and gradient.
+    #[inline(always)]
+    fn fold_product(&mut self, a: &D1, b: &D1, put: impl Fn(f64, f64) -> f64) {
+        self.v = put(self.v, a.v * b.v);
+        for i in 0..N {
+            self.g[i] = put(self.g[i], a.v * b.g[i] + b.v * a.g[i]);
+        }
+    }
+
+    /// [`Hd::fold_product_local`]'s value and gradient.
+    #[inline(always)]
+    fn fold_product_local(&mut self, a: &D1, b: &D1, o: usize, put: impl Fn(f64, f64) -> f64) {
+        debug_assert!(o + 3 <= N);
+        self.v = put(self.v, a.v * b.v);
+        let mut g: [f64; N] = core::array::from_fn(|i| b.v * a.g[i]);
+        for (gi, bg) in g[o..o + 3].iter_mut().zip(&b.g[o..o + 3]) {
+            *gi += a.v * bg;
+        }
+        for (out, x) in self.g.iter_mut().zip(g) {
+            *out = put(*out, x);
+        }
+    }
+
+    /// [`Hd`]'s `chain`: `f(self)` given `f` and `f'` at `self.v`.
+    fn chain(&self, f0: f64, f1: f64) -> Self {
+        Self {
+            v: f0,
+            g: core::array::from_fn(|i| f1 * self.g[i]),
+        }
+    }
+}
+
+impl Ad for D1 {
+    fn cst(v: f64) -> Self {
+        Self { v, g: [0.0; N] }
+    }
+    fn var(v: f64, k: usize) -> Self {
+        let mut s = Self::cst(v);
+        s.g[k] = 1.0;
+        s
+    }
+    fn grad(&self) -> &[f64; N] {
+        &self.g
+    }
+    fn sqrt(self) -> Self {
+        let s = self.v.sqrt();
+        self.chain(s, 0.5 / s)
+    }
+    fn recip(self) -> Self {
+        let r = 1.0 / self.v;
+        self.chain(r, -r * r)
+    }
+    fn scale(&self, s: f64) -> Self {
+        Self {
+            v: self.v * s,
+            g: self.g.map(|x| x * s),
+        }
+    }
+    fn add_ref(&self, o: &Self) -> Self {
+        Self {
+            v: self.v + o.v,
+            g: core::array::from_fn(|i| self.g[i] + o.g[i]),
+        }
+    }
+    fn mul_ref(&self, o: &Self) -> Self {
+        let mut r = Self::cst(0.0);
+        r.fold_product(self, o, |_, p| p);
+        r
+    }
+    fn mul_add(&mut self, a: &Self, b: &Self) {
+        self.fold_product(a, b, |s, p| s + p);
+    }
+    fn mul_sub(&mut self, a: &Self, b: &Self) {
+        self.fold_product(a, b, |s, p| s - p);
+    }
+    fn mul_local(&mut self, a: &Self, b: &Self, o: usize, first: bool) {
+        if first {
+            self.fold_product_local(a, b, o, |_, p| p);
+        } else {
+            self.fold_product_local(a, b, o, |s, p| s + p);
+        }
+    }
+    fn rotated(a: &[f64; 3], offset: usize, j: usize) -> Self {
+        debug_assert!(offset + 3 <= N);
+        let mut r = Self::cst(a[j]);
+        let (j1, j2) = ((j + 1) % 3, (j + 2) % 3);
+        r.g[offset + j1] = a[j2];
+        r.g[offset + j2] = -a[j1];
+        r
+    }
+}
+
+impl Add for D1 {
+    type Output = D1;
+    fn add(self, o: D1) -> D1 {
+        self.add_ref(&o)
+    }
+}
+
+impl Sub for D1 {
+    type Output = D1;
+    /// As [`Hd`]'s: `v − o.v`, `g − o.g`.
+    fn sub(self, o: D1) -> D1 {
+        D1 {
+            v: self.v - o.v,
+            g: core::array::from_fn(|i| self.g[i] - o.g[i]),
+        }
+    }
+}
+
+impl Add<f64> for D1 {
+    type Output = D1;
+    fn add(mut self, o: f64) -> D1 {
+        self.v += o;
+        self
+    }
+}
+
+impl Mul<f64> for D1 {
+    type Output = D1;
+    fn mul(self, o: f64) -> D1 {
+        self.scale(o)
+    }
+}
+
+impl Mul for D1 {
+    type Output = D1;
+    fn mul(self, o: D1) -> D1 {
+        self.mul_ref(&o)
+    }
+}
+
+/// A 3-vector of [`Hd`] (or of another [`Ad`]).
+pub(crate) type V3<T = Hd> = [T; 3];
+
+pub(crate) fn dot<T: Ad>(a: &V3<T>, b: &V3<T>) -> T {
+    let mut r = a[0].mul_ref(&b[0]);
+    r.mul_add(&a[1], &b[1]);
+    r.mul_add(&a[2], &b[2]);
+    r
+}
+
+/// [`dot`] of `a` with a `b` that depends only on the variables `o..o + 3`
+/// ([`Hd::fold_product_local`]): the same numbers but for the sign of zeros.
+pub(crate) fn dot_local<T: Ad>(a: &V3<T>, b: &V3<T>, o: usize) -> T {
+    let mut r = T::cst(0.0);
+    r.mul_local(&a[0], &b[0], o, true);
+    r.mul_local(&a[1], &b[1], o, false);
+    r.mul_local(&a[2], &b[2], o, false);
+    r
+}
+
+/// `x y − z w`.
+fn mul_minus_mul<T: Ad>(x: &T, y: &T, z: &T, w: &T) -> T {
+    let mut r = x.mul_ref(y);
+    r.mul_sub(z, w);
+    r
+}
+
+pub(crate) fn cross<T: Ad>(a: &V3<T>, b: &V3<T>) -> V3<T> {
+    [
+        mul_minus_mul(&a[1], &b[2], &a[2], &b[1]),
+        mul_minus_mul(&a[2], &b[0], &a[0], &b[2]),
+        mul_minus_mul(&a[0], &b[1], &a[1], &b[0]),
+    ]
+}
+
+pub(crate) fn add<T: Ad>(a: &V3<T>, b: &V3<T>) -> V3<T> {
+    [
+        a[0].add_ref(&b[0]),
+        a[1].add_ref(&b[1]),
+        a[2].add_ref(&b[2]),
+    ]
+}
+
+pub(crate) fn scale<T: Ad>(a: &V3<T>, s: T) -> V3<T> {
+    [a[0].mul_ref(&s), a[1].mul_ref(&s), a[2].mul_ref(&s)]
+}
+
+pub(crate) fn scale_f<T: Ad>(a: &V3<T>, s: f64) -> V3<T> {
+    [a[0].scale(s), a[1].scale(s), a[2].scale(s)]
+}
+
+/// Cross product of a variable vector with a constant vector.
+#[cfg(test)]
+pub(crate) fn cross_c(a: &V3, b: &[f64; 3]) -> V3 {
+    [
+        a[1].scale(b[2]) - a[2].scale(b[1]),
+        a[2].scale(b[0]) - a[0].scale(b[2]),
+        a[0].scale(b[1]) - a[1].scale(b[0]),
+    ]
+}
+
+/// `(I + W + ½W²) a` for a constant `a`, `W = [ω]×`, as functions of the variables
+/// `ω = offset..offset + 3` at `ω = 0`: the value `a`, the gradient `∂(ω × a)/∂ω` and the
+/// Hessian `½ ∂²(ω × (ω × a))/∂ω²`, written directly — the numbers the operators give for
+/// `a + ω × a + ½ ω × (ω × a)` (every entry a single `±a_q` or `½ a_q`, so no rounding either
+/// way), without their 18 products of 440-byte values.
+pub(crate) fn rotated_column<T: Ad>(a: &[f64; 3], offset: usize) -> V3<T> {
+    core::array::from_fn(|j| T::rotated(a, offset, j))
 }
 
 #[cfg(test)]
