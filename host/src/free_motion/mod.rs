@@ -315,11 +315,10 @@ impl<E: Elements> FeModel<E> {
 
     /// The element pass: element frames and `f_int` at the current positions, skipped when
     /// the state is a function of the positions and they are bit for bit those of the last
-    /// pass (its frames and forces are then exactly what the pass would give). Returns
-    /// whether it ran.
-    fn update_elements(&mut self) -> bool {
+    /// pass (its frames and forces are then exactly what the pass would give).
+    fn update_elements(&mut self) {
         if E::STATE_OF_POSITIONS && same_bits(&self.pass_positions, &self.positions) {
-            return false;
+            return;
         }
         self.f_int.iter_mut().for_each(|v| *v = 0.0);
         self.elements
@@ -328,7 +327,6 @@ impl<E: Elements> FeModel<E> {
             self.pass_positions.clone_from(&self.positions);
         }
         self.unloaded_solve = None;
-        true
     }
 
     /// Element update and assembly: internal forces and the values of `K(x) + M/h²` written
