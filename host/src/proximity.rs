@@ -235,6 +235,55 @@ impl SurfaceProjector {
     }
 }
 
+/// A [`SurfaceProjector`] kept with the node positions it was built at, for one surface: built
+/// again only when a position changed (bit for bit). Before the needle touches it the gel is at
+/// rest and its positions do not change from step to step (see `FeModel::free_motion_unloaded`),
+/// so the tip's approach, within [`box_distance`] reach of the gel, queries one projector
+/// instead of building a BVH over the whole surface every step.
+#[derive(Default)]
+pub struct CachedProjector {
+    at: Vec<Vector3<f64>>,
+    projector: Option<SurfaceProjector>,
+    builds: usize,
+}
+
+impl CachedProjector {
+    /// The projector of `triangles` at `nodes` (always the same `triangles` for one cache).
+    pub fn get(&mut self, nodes: &[Vector3<f64>], triangles: &[[usize; 3]]) -> &SurfaceProjector {
+        if self.projector.is_none() || !same_bits(&self.at, nodes) {
+            self.at.clear();
+            self.at.extend_from_slice(nodes);
+            self.builds += 1;
+            self.projector = Some(SurfaceProjector::new(nodes, triangles));
+        }
+        self.projector
+            .get_or_insert_with(|| SurfaceProjector::new(nodes, triangles))
+    }
+
+    /// How many projectors it has built.
+    pub fn builds(&self) -> usize {
+        self.builds
+    }
+}
+
+impl std::fmt::Debug for CachedProjector {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("CachedProjector")
+            .field("nodes", &self.at.len())
+            .field("built", &self.projector.is_some())
+            .field("builds", &self.builds)
+            .finish()
+    }
+}
+
+/// Whether `a` and `b` hold the same positions to the last bit.
+fn same_bits(a: &[Vector3<f64>], b: &[Vector3<f64>]) -> bool {
+    a.len() == b.len()
+        && a.iter()
+            .zip(b)
+            .all(|(p, q)| (0..3).all(|k| p[k].to_bits() == q[k].to_bits()))
+}
+
 /// The closest pair of a polyline and a closed surface, and their signed distance.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct SurfaceClearance {
@@ -542,6 +591,36 @@ mod tests {
             s.project(&n, &tris, &Vector3::new(0.5, 0.5, 30.0), 1.0)
                 .is_none()
         );
+    }
+
+    #[test]
+    fn cached_projector_is_built_again_only_when_a_node_moves() {
+        let mut n = vec![
+            Vector3::zeros(),
+            Vector3::x(),
+            Vector3::new(1.0, 1.0, 0.0),
+            Vector3::y(),
+        ];
+        let tris = vec![[0, 1, 2], [0, 2, 3]];
+        let p = Vector3::new(0.7, 0.6, 0.3);
+        let mut cache = CachedProjector::default();
+        let first = cache.get(&n, &tris).project(&n, &tris, &p, 10.0);
+        let again = cache.get(&n, &tris).project(&n, &tris, &p, 10.0);
+        assert_eq!(cache.builds(), 1, "the same positions: no new build");
+        assert_eq!(first, again);
+        // A node moved by one unit in the last place: built again.
+        n[2].z = f64::from_bits(n[2].z.to_bits() + 1);
+        let _ = cache.get(&n, &tris);
+        assert_eq!(cache.builds(), 2);
+        // Moved further: built again, and the answer is a fresh projector's.
+        n[2].z = 0.2;
+        let moved = cache.get(&n, &tris).project(&n, &tris, &p, 10.0);
+        assert_eq!(cache.builds(), 3);
+        assert_eq!(
+            moved,
+            SurfaceProjector::new(&n, &tris).project(&n, &tris, &p, 10.0)
+        );
+        assert_ne!(moved, first);
     }
 
     #[test]

@@ -39,7 +39,7 @@ use crate::compliance::{NodeColumns, PointColumns};
 use crate::constraints::{ConstraintSet, GroupRole, Model};
 use crate::error::{Body, CommandMismatch, NonFiniteAt, SimError};
 use crate::joints::{Joints, MAX_JOINTS, normalised_limit_margin};
-use crate::proximity::Embedded;
+use crate::proximity::{CachedProjector, Embedded};
 use crate::world::World;
 use nalgebra::Vector3;
 use needle_bridge::Transport;
@@ -159,6 +159,8 @@ pub struct Pipeline<const N: usize = 6> {
     columns: Vec<(usize, PointColumns)>,
     /// Gel columns of the nodes under the tip's contact point, kept while the factor is.
     contact_nodes: NodeColumns,
+    /// The gel surface's projector for the tip's contact, kept while the gel does not move.
+    surface: CachedProjector,
     /// The stage times of the last step.
     pub times: StageTimes,
 }
@@ -186,6 +188,7 @@ impl<const N: usize> Pipeline<N> {
             },
             columns: Vec::new(),
             contact_nodes: NodeColumns::default(),
+            surface: CachedProjector::default(),
             times: StageTimes::default(),
         }
     }
@@ -254,6 +257,7 @@ impl<const N: usize> Pipeline<N> {
             &self.free,
             &params.interaction,
             &mut self.columns,
+            &mut self.surface,
         );
         let rows = self.set.rows();
         if rows > ROWS {

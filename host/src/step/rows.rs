@@ -8,7 +8,7 @@ use crate::compliance::{PointColumns, PointMap};
 use crate::constraints::{
     Attachment, ConstraintGroup, ConstraintSet, GroupRole, Model, group, orthonormal_pair,
 };
-use crate::proximity::{Embedded, SurfaceProjector, box_distance};
+use crate::proximity::{CachedProjector, Embedded, box_distance};
 use crate::world::{SlidingPoint, World, closest_on_polyline};
 use nalgebra::Matrix3;
 use needle_core::payload::GroupKind;
@@ -24,6 +24,7 @@ pub fn build<const N: usize>(
     free: &FreePositions,
     inter: &Interaction,
     columns: &mut Vec<(usize, PointColumns)>,
+    surface: &mut CachedProjector,
 ) {
     set.needle.points.clear();
     set.gel.points.clear();
@@ -38,7 +39,7 @@ pub fn build<const N: usize>(
     }
     columns.clear();
     if !world.punctured {
-        contact_rows(set, world, free, inter);
+        contact_rows(set, world, free, inter, surface);
     }
 }
 
@@ -128,6 +129,7 @@ fn contact_rows<const N: usize>(
     world: &World<N>,
     free: &FreePositions,
     inter: &Interaction,
+    surface: &mut CachedProjector,
 ) {
     let gel_nodes = world.gel.positions();
     let n_last = world.needle.node_count() - 1;
@@ -138,7 +140,8 @@ fn contact_rows<const N: usize>(
     if !world.in_contact && box_distance(gel_nodes, &tip) > CONTACT_DISTANCE {
         return;
     }
-    let projector = SurfaceProjector::new(gel_nodes, &world.surface);
+    // Built again only when the gel moved: at rest, before the tip touches it, one BVH.
+    let projector = surface.get(gel_nodes, &world.surface);
     // A tip that pushed on the surface last step keeps its contact rows however deep the
     // dimple under it (a point load on a coarse mesh can indent by more than
     // CONTACT_DISTANCE): a contact is never lost by looking too close.
