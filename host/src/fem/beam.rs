@@ -385,9 +385,9 @@ impl CorotationalBeams {
     }
 
     /// [`CorotationalBeams::element_state`] without the Hessian (left zero): energy, force and
-    /// material stiffness bit for bit the same, by first-order differentiation ([`D1`]), at a
-    /// sixth of the derivative entries. What a step needs when it assembles the material
-    /// stiffness alone.
+    /// material stiffness bit for bit the same, by first-order differentiation (dual numbers
+    /// without the Hessian), at a sixth of the derivative entries. What a step needs when it
+    /// assembles the material stiffness alone.
     pub fn element_state_material(
         &self,
         e: usize,
