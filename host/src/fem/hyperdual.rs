@@ -220,13 +220,6 @@ impl Add<&Hd> for &Hd {
     }
 }
 
-impl Add for Hd {
-    type Output = Hd;
-    fn add(self, o: Hd) -> Hd {
-        <&Hd as Add<&Hd>>::add(&self, &o)
-    }
-}
-
 impl Sub<&Hd> for &Hd {
     type Output = Hd;
     /// `self + (−o)`, which IEEE arithmetic makes the same numbers as `self − o`.
@@ -253,34 +246,12 @@ impl Neg for Hd {
     }
 }
 
-impl Add<f64> for Hd {
-    type Output = Hd;
-    fn add(mut self, o: f64) -> Hd {
-        self.v += o;
-        self
-    }
-}
-
-impl Mul<f64> for Hd {
-    type Output = Hd;
-    fn mul(self, o: f64) -> Hd {
-        self.scale(o)
-    }
-}
-
 impl Mul<&Hd> for &Hd {
     type Output = Hd;
     fn mul(self, o: &Hd) -> Hd {
         let mut r = Hd::cst(0.0);
         r.fold_product(self, o, |_, p| p);
         r
-    }
-}
-
-impl Mul for Hd {
-    type Output = Hd;
-    fn mul(self, o: Hd) -> Hd {
-        <&Hd as Mul<&Hd>>::mul(&self, &o)
     }
 }
 
@@ -457,13 +428,6 @@ impl Ad for D1 {
     }
 }
 
-impl Add for D1 {
-    type Output = D1;
-    fn add(self, o: D1) -> D1 {
-        self.add_ref(&o)
-    }
-}
-
 impl Sub for D1 {
     type Output = D1;
     /// As [`Hd`]'s: `v − o.v`, `g − o.g`.
@@ -475,27 +439,44 @@ impl Sub for D1 {
     }
 }
 
-impl Add<f64> for D1 {
-    type Output = D1;
-    fn add(mut self, o: f64) -> D1 {
-        self.v += o;
-        self
-    }
+/// The operators by value and with a constant, the same for both number types: `a + b` and
+/// `a b` are the reference forms' ([`Ad::add_ref`], [`Ad::mul_ref`]), `a + c` adds to the
+/// value alone, `a c` scales.
+macro_rules! value_operators {
+    ($t:ty) => {
+        impl Add for $t {
+            type Output = $t;
+            fn add(self, o: $t) -> $t {
+                Ad::add_ref(&self, &o)
+            }
+        }
+
+        impl Mul for $t {
+            type Output = $t;
+            fn mul(self, o: $t) -> $t {
+                Ad::mul_ref(&self, &o)
+            }
+        }
+
+        impl Add<f64> for $t {
+            type Output = $t;
+            fn add(mut self, o: f64) -> $t {
+                self.v += o;
+                self
+            }
+        }
+
+        impl Mul<f64> for $t {
+            type Output = $t;
+            fn mul(self, o: f64) -> $t {
+                Ad::scale(&self, o)
+            }
+        }
+    };
 }
 
-impl Mul<f64> for D1 {
-    type Output = D1;
-    fn mul(self, o: f64) -> D1 {
-        self.scale(o)
-    }
-}
-
-impl Mul for D1 {
-    type Output = D1;
-    fn mul(self, o: D1) -> D1 {
-        self.mul_ref(&o)
-    }
-}
+value_operators!(Hd);
+value_operators!(D1);
 
 /// A 3-vector of [`Hd`] (or of another [`Ad`]).
 pub(crate) type V3<T = Hd> = [T; 3];
