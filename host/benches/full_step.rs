@@ -86,8 +86,12 @@ fn scene(nodes: usize, mode: Mode) -> Scene {
         .expect("valid override")
 }
 
-/// The gel size, the depths and the median stage split of the timed steps.
+/// The gel size, the depths and the median stage split of the timed steps; nothing for a
+/// variant that timed no step (one a filter left out).
 fn print_stages(name: &str, world: &World, depth0: f64, timed: &[StepReport]) {
+    if timed.is_empty() {
+        return;
+    }
     let med = |f: fn(&StepReport) -> f64| median(timed.iter().map(f).collect());
     eprintln!(
         "{name}: {} gel nodes, depth {depth0:.1} → {:.1} mm over {} timed steps; \
