@@ -250,7 +250,7 @@ pub struct CachedProjector {
 impl CachedProjector {
     /// The projector of `triangles` at `nodes` (always the same `triangles` for one cache).
     pub fn get(&mut self, nodes: &[Vector3<f64>], triangles: &[[usize; 3]]) -> &SurfaceProjector {
-        if self.projector.is_none() || !same_bits(&self.at, nodes) {
+        if self.projector.is_none() || !crate::free_motion::same_bits(&self.at, nodes) {
             self.at.clear();
             self.at.extend_from_slice(nodes);
             self.builds += 1;
@@ -274,14 +274,6 @@ impl std::fmt::Debug for CachedProjector {
             .field("builds", &self.builds)
             .finish()
     }
-}
-
-/// Whether `a` and `b` hold the same positions to the last bit.
-fn same_bits(a: &[Vector3<f64>], b: &[Vector3<f64>]) -> bool {
-    a.len() == b.len()
-        && a.iter()
-            .zip(b)
-            .all(|(p, q)| (0..3).all(|k| p[k].to_bits() == q[k].to_bits()))
 }
 
 /// The closest pair of a polyline and a closed surface, and their signed distance.

@@ -490,7 +490,7 @@ impl<E: Elements> FeModel<E> {
 }
 
 /// Whether two position lists are equal bit for bit (a NaN equals itself, −0 differs from 0).
-fn same_bits(a: &[Vector3<f64>], b: &[Vector3<f64>]) -> bool {
+pub(crate) fn same_bits(a: &[Vector3<f64>], b: &[Vector3<f64>]) -> bool {
     a.len() == b.len()
         && a.iter()
             .zip(b)
