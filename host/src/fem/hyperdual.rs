@@ -65,22 +65,42 @@ pub(crate) trait Ad:
     fn scale(&self, s: f64) -> Self;
     /// `self + o`.
     fn add_ref(&self, o: &Self) -> Self;
+    /// Each entry `x` of `self` becomes `put(x, p)`, `p` the entry of the product `a b`
+    /// ([`Hd`]'s `fold_product`).
+    fn fold(&mut self, a: &Self, b: &Self, put: impl Fn(f64, f64) -> f64);
+    /// [`Ad::fold`] for a `b` of the variables `o..o + 3` alone ([`Hd`]'s
+    /// `fold_product_local`).
+    fn fold_local(&mut self, a: &Self, b: &Self, o: usize, put: impl Fn(f64, f64) -> f64);
     /// `self · o`.
-    fn mul_ref(&self, o: &Self) -> Self;
+    fn mul_ref(&self, o: &Self) -> Self {
+        let mut r = Self::cst(0.0);
+        r.fold(self, o, |_, p| p);
+        r
+    }
     /// `self + a b`, in place.
-    fn mul_add(&mut self, a: &Self, b: &Self);
+    fn mul_add(&mut self, a: &Self, b: &Self) {
+        self.fold(a, b, |s, p| s + p);
+    }
     /// `self − a b`, in place.
-    fn mul_sub(&mut self, a: &Self, b: &Self);
+    fn mul_sub(&mut self, a: &Self, b: &Self) {
+        self.fold(a, b, |s, p| s - p);
+    }
     /// `self ← a b` (`first`) or `self ← self + a b`, for a `b` of the variables `o..o + 3`
-    /// alone (see [`Hd`]'s `fold_product_local`).
-    fn mul_local(&mut self, a: &Self, b: &Self, o: usize, first: bool);
+    /// alone.
+    fn mul_local(&mut self, a: &Self, b: &Self, o: usize, first: bool) {
+        if first {
+            self.fold_local(a, b, o, |_, p| p);
+        } else {
+            self.fold_local(a, b, o, |s, p| s + p);
+        }
+    }
     /// Component `j` of [`rotated_column`]`(a, offset)`.
     fn rotated(a: &[f64; 3], offset: usize, j: usize) -> Self;
 }
 
 /// A value with exact gradient and Hessian with respect to `N` variables. Only the upper
 /// triangle of the symmetric Hessian is stored (packed row by row, [`PAIRS`]); read it with
-/// [`Hd::hess`]. The operators also take references, and [`Hd::mul_add`] / [`Hd::mul_sub`]
+/// [`Hd::hess`]. The operators also take references, and [`Ad::mul_add`] / [`Ad::mul_sub`]
 /// accumulate a product in place: a value is 440 bytes, and copying operands and temporaries
 /// cost as much as the arithmetic.
 #[derive(Clone, Copy, Debug)]
@@ -197,16 +217,6 @@ impl Hd {
             *out = put(*out, x);
         }
     }
-
-    /// `self + a b`, in place (the same numbers as `self + a * b`).
-    pub fn mul_add(&mut self, a: &Hd, b: &Hd) {
-        self.fold_product(a, b, |s, p| s + p);
-    }
-
-    /// `self − a b`, in place (the same numbers as `self - a * b`).
-    pub fn mul_sub(&mut self, a: &Hd, b: &Hd) {
-        self.fold_product(a, b, |s, p| s - p);
-    }
 }
 
 impl Add<&Hd> for &Hd {
@@ -306,21 +316,11 @@ impl Ad for Hd {
     fn add_ref(&self, o: &Self) -> Self {
         self + o
     }
-    fn mul_ref(&self, o: &Self) -> Self {
-        self * o
+    fn fold(&mut self, a: &Self, b: &Self, put: impl Fn(f64, f64) -> f64) {
+        self.fold_product(a, b, put);
     }
-    fn mul_add(&mut self, a: &Self, b: &Self) {
-        Hd::mul_add(self, a, b);
-    }
-    fn mul_sub(&mut self, a: &Self, b: &Self) {
-        Hd::mul_sub(self, a, b);
-    }
-    fn mul_local(&mut self, a: &Self, b: &Self, o: usize, first: bool) {
-        if first {
-            self.fold_product_local(a, b, o, |_, p| p);
-        } else {
-            self.fold_product_local(a, b, o, |s, p| s + p);
-        }
+    fn fold_local(&mut self, a: &Self, b: &Self, o: usize, put: impl Fn(f64, f64) -> f64) {
+        self.fold_product_local(a, b, o, put);
     }
     fn rotated(a: &[f64; 3], offset: usize, j: usize) -> Self {
         Hd::rotated_component(a, offset, j)
@@ -400,23 +400,11 @@ impl Ad for D1 {
             g: core::array::from_fn(|i| self.g[i] + o.g[i]),
         }
     }
-    fn mul_ref(&self, o: &Self) -> Self {
-        let mut r = Self::cst(0.0);
-        r.fold_product(self, o, |_, p| p);
-        r
+    fn fold(&mut self, a: &Self, b: &Self, put: impl Fn(f64, f64) -> f64) {
+        self.fold_product(a, b, put);
     }
-    fn mul_add(&mut self, a: &Self, b: &Self) {
-        self.fold_product(a, b, |s, p| s + p);
-    }
-    fn mul_sub(&mut self, a: &Self, b: &Self) {
-        self.fold_product(a, b, |s, p| s - p);
-    }
-    fn mul_local(&mut self, a: &Self, b: &Self, o: usize, first: bool) {
-        if first {
-            self.fold_product_local(a, b, o, |_, p| p);
-        } else {
-            self.fold_product_local(a, b, o, |s, p| s + p);
-        }
+    fn fold_local(&mut self, a: &Self, b: &Self, o: usize, put: impl Fn(f64, f64) -> f64) {
+        self.fold_product_local(a, b, o, put);
     }
     fn rotated(a: &[f64; 3], offset: usize, j: usize) -> Self {
         debug_assert!(offset + 3 <= N);
