@@ -21,6 +21,9 @@ use faer::sparse::{SparseColMatRef, SymbolicSparseColMatRef};
 use faer::{Conj, MatMut, Par, Side, Spec};
 use std::fmt;
 
+mod trailing;
+pub use trailing::TrailingBlock;
+
 /// Why a sparse operation failed.
 #[derive(Clone, Copy, Debug, PartialEq, thiserror::Error)]
 #[non_exhaustive]
@@ -744,6 +747,29 @@ fn pcg_iterate(
 /// separator last, down to blocks of fewer than 6 rows (two nodes), which keep their natural order. On 3-D meshes this gives
 /// less fill than minimum degree (the separators are planes).
 pub fn nested_dissection_order(pattern: &SymmetricPattern, coords: &[[f64; 3]]) -> Vec<usize> {
+    let adj = adjacency(pattern);
+    dissect(&adj, coords, (0..pattern.dim()).collect())
+}
+
+/// [`nested_dissection_order`] with the rows marked in `last` eliminated last: the other rows
+/// in their nested-dissection order, then the marked rows in theirs. A factor so ordered keeps
+/// its columns before the marked rows when only the marked rows' block of the matrix changes
+/// ([`TrailingBlock`], first column: the number of unmarked rows).
+pub fn nested_dissection_order_with_last(
+    pattern: &SymmetricPattern,
+    coords: &[[f64; 3]],
+    last: &[bool],
+) -> Vec<usize> {
+    let adj = adjacency(pattern);
+    let n = pattern.dim();
+    let marked = |i: &usize| last.get(*i).copied().unwrap_or(false);
+    let mut order = dissect(&adj, coords, (0..n).filter(|i| !marked(i)).collect());
+    order.extend(dissect(&adj, coords, (0..n).filter(marked).collect()));
+    order
+}
+
+/// Each row's neighbours in the matrix graph of `pattern` (the diagonal left out).
+fn adjacency(pattern: &SymmetricPattern) -> Vec<Vec<usize>> {
     let n = pattern.dim();
     let mut adj: Vec<Vec<usize>> = vec![Vec::new(); n];
     for c in 0..n {
@@ -754,9 +780,16 @@ pub fn nested_dissection_order(pattern: &SymmetricPattern, coords: &[[f64; 3]]) 
             }
         }
     }
+    adj
+}
+
+/// The nested-dissection order of the rows `set` (see [`nested_dissection_order`]); a row's
+/// neighbours outside `set` never enter its separators.
+fn dissect(adj: &[Vec<usize>], coords: &[[f64; 3]], set: Vec<usize>) -> Vec<usize> {
+    let n = adj.len();
     let mut order = Vec::with_capacity(n);
     let mut side = vec![0u8; n];
-    let mut stack: Vec<(Vec<usize>, bool)> = vec![((0..n).collect(), false)];
+    let mut stack: Vec<(Vec<usize>, bool)> = vec![(set, false)];
     // Iterative post-order: (set, expanded?) — an expanded set pushes [separator, right, left].
     while let Some((set, leaf)) = stack.pop() {
         if leaf || set.len() < 6 {

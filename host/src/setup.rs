@@ -17,7 +17,7 @@ use crate::free_motion::{
 use crate::joints::{WithJoints, with_joints};
 use crate::linalg::Precision;
 use crate::mesh::{TetMesh, box_mesh, read_mesh};
-use crate::scene::{FactorPrecisionSpec, GelSolveSpec, InsertionMode, Scene};
+use crate::scene::{FactorPrecisionSpec, GelSolveSpec, InsertionMode, SampledPath, Scene};
 use crate::step::{Insertion, Interaction, StepParams, TargetMotion};
 use crate::support_motion::SupportMotion;
 use crate::world::{ObstacleShape, World, WorldParts, node_frame_offset};
@@ -139,11 +139,13 @@ impl<const N: usize> Setup<N> {
             t0.elapsed().as_secs_f64()
         );
         let fixed = fixed_nodes(scene, &mesh)?;
-        let gel = GelModel::try_new(mesh, &fixed, &gel_params(scene)).map_err(|source| {
-            SetupError::Model {
-                body: Body::Gel,
-                source,
-            }
+        let params = GelParams {
+            near_nodes: near_nodes(scene, &mesh, &path),
+            ..gel_params(scene)
+        };
+        let gel = GelModel::try_new(mesh, &fixed, &params).map_err(|source| SetupError::Model {
+            body: Body::Gel,
+            source,
         })?;
         let robot = scene.robot_n::<N>().map_err(robot_error)?;
         let q = start_joints_n(scene, &robot)?;
@@ -299,7 +301,38 @@ pub fn gel_params(scene: &Scene) -> GelParams {
             FactorPrecisionSpec::Single => Precision::Single,
             FactorPrecisionSpec::Double => Precision::Double,
         },
+        near_nodes: None,
     }
+}
+
+/// The gel's nodes within `solver.near_radius` of the planned path at rest or of its straight
+/// approach above the entry point (`None` without the option): the near block of
+/// [`GelParams::near_nodes`].
+pub fn near_nodes(scene: &Scene, mesh: &TetMesh, path: &SampledPath) -> Option<Vec<bool>> {
+    let radius = scene.solver.near_radius?;
+    let entry = path.entry();
+    let back = -path.entry_tangent() * path.approach;
+    let segments = path
+        .points
+        .windows(2)
+        .map(|w| (w[0], w[1]))
+        .chain(std::iter::once((entry + back, entry)));
+    let segments: Vec<(Vector3<f64>, Vector3<f64>)> = segments.collect();
+    let distance = |p: &Vector3<f64>| {
+        segments
+            .iter()
+            .map(|(a, b)| {
+                let ab = b - a;
+                let t = if ab.norm_squared() > 0.0 {
+                    ((p - a).dot(&ab) / ab.norm_squared()).clamp(0.0, 1.0)
+                } else {
+                    0.0
+                };
+                (a + ab * t - p).norm()
+            })
+            .fold(f64::INFINITY, f64::min)
+    };
+    Some(mesh.nodes.iter().map(|p| distance(p) <= radius).collect())
 }
 
 /// The needle model's parameters of `scene`.

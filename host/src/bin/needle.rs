@@ -384,8 +384,13 @@ fn print_text(s: &RunSummary) {
         s.max_inverted_elements
     );
     if s.background_factorizations + s.immediate_factorizations > 0 {
+        let near = if s.near_factorizations > 0 {
+            format!(", {} of the near block alone", s.near_factorizations)
+        } else {
+            String::new()
+        };
         println!(
-            "gel factorisations: {} on the background thread, {} at once",
+            "gel factorisations: {} on the background thread, {} at once{near}",
             s.background_factorizations, s.immediate_factorizations
         );
     }

@@ -339,10 +339,18 @@ pub fn rotation_from_deformation_svd(f: &Matrix3<f64>) -> Matrix3<f64> {
 /// `‖R − R'‖_F = 2√2 sin(θ/2)` (e.g. element rotations at two times: the corotational tangent
 /// `R K0 Rᵀ` changes only through them).
 pub fn largest_rotation_between(a: &[Matrix3<f64>], b: &[Matrix3<f64>]) -> f64 {
-    let largest = a
-        .iter()
-        .zip(b)
-        .map(|(r, s)| (r - s).norm_squared())
+    largest_rotation_where(a, b, |_| true)
+}
+
+/// [`largest_rotation_between`] over the pairs whose index `keep` accepts (0 for none).
+pub fn largest_rotation_where(
+    a: &[Matrix3<f64>],
+    b: &[Matrix3<f64>],
+    keep: impl Fn(usize) -> bool,
+) -> f64 {
+    let largest = (a.iter().zip(b).enumerate())
+        .filter(|(i, _)| keep(*i))
+        .map(|(_, (r, s))| (r - s).norm_squared())
         .fold(0.0f64, f64::max);
     let chord = (largest.sqrt() / (2.0 * core::f64::consts::SQRT_2)).min(1.0);
     2.0 * chord.asin()
@@ -729,24 +737,37 @@ impl CorotationalTetra {
     pub fn assemble(&self, slots: &[u32], values: &mut [f64], scale: f64) {
         debug_assert_eq!(slots.len(), STIFFNESS_ENTRIES * self.tets.len());
         for e in 0..self.tets.len() {
-            let r = &self.rotations[e];
-            let h = self.grads[e].map(|g| r * g);
-            let vol = scale * self.volumes[e];
-            let lame = self.lame[e];
-            let s = &slots[STIFFNESS_ENTRIES * e..STIFFNESS_ENTRIES * (e + 1)];
-            let mut k = 0;
-            for &(a, b) in BLOCK_PAIRS.iter() {
-                let blk = Self::block(vol, lame, &h, a, b);
-                for i in 0..3 {
-                    for j in 0..3 {
-                        if a == b && j < i {
-                            continue;
-                        }
-                        let slot = s[k];
-                        k += 1;
-                        if slot != u32::MAX {
-                            values[slot as usize] += blk[(i, j)];
-                        }
+            self.assemble_element(e, &self.rotations[e], slots, values, scale);
+        }
+    }
+
+    /// Adds `scale · R K0_e Rᵀ`, element `e`'s stiffness at rotation `r` (not necessarily its
+    /// current one), into `values` through the slots of [`CorotationalTetra::assemble`].
+    #[inline(always)]
+    pub fn assemble_element(
+        &self,
+        e: usize,
+        r: &Matrix3<f64>,
+        slots: &[u32],
+        values: &mut [f64],
+        scale: f64,
+    ) {
+        let h = self.grads[e].map(|g| r * g);
+        let vol = scale * self.volumes[e];
+        let lame = self.lame[e];
+        let s = &slots[STIFFNESS_ENTRIES * e..STIFFNESS_ENTRIES * (e + 1)];
+        let mut k = 0;
+        for &(a, b) in BLOCK_PAIRS.iter() {
+            let blk = Self::block(vol, lame, &h, a, b);
+            for i in 0..3 {
+                for j in 0..3 {
+                    if a == b && j < i {
+                        continue;
+                    }
+                    let slot = s[k];
+                    k += 1;
+                    if slot != u32::MAX {
+                        values[slot as usize] += blk[(i, j)];
                     }
                 }
             }

@@ -3,7 +3,7 @@
 //! matrix in use (see the module docs of [`crate::free_motion`]).
 
 use crate::fem::FemError;
-use crate::fem::tetra::largest_rotation_between;
+use crate::fem::tetra::{largest_rotation_between, largest_rotation_where};
 use crate::linalg::{Cholesky, LinalgError, Precision, SymmetricMatrix, SymmetricPattern};
 use nalgebra::Matrix3;
 use std::sync::mpsc::{Receiver, SyncSender, TryRecvError, sync_channel};
@@ -195,36 +195,100 @@ pub(super) struct LagGuard {
     in_use: Vec<Matrix3<f64>>,
     sent: Vec<Matrix3<f64>>,
     /// Largest rotation of an element between the matrix of the factor in use and the current
-    /// positions [rad] (0 after a factorisation at once).
+    /// positions [rad] (0 after a factorisation at once); with a near block, of the elements
+    /// not all of whose nodes are near.
     pub lag: f64,
+    /// The elements whose nodes are all in the factor's near block (empty: no block). Their
+    /// rotations are measured apart ([`LagGuard::near_lag`]): the block is refactorised on its
+    /// own.
+    near: Vec<bool>,
+    /// The indices of those elements.
+    near_list: Vec<usize>,
+    /// With a near block: the element rotations of the matrix of the last full factorisation
+    /// in use (`in_use` but for the near block's refreshes); empty without a block.
+    full: Vec<Matrix3<f64>>,
 }
 
 impl LagGuard {
-    /// A guard for `elements` elements at rest.
-    pub fn new(elements: usize) -> Self {
+    /// A guard for `elements` elements at rest; `near` marks the elements of the near block
+    /// (empty: none).
+    pub fn new(elements: usize, near: Vec<bool>) -> Self {
+        let near_list = (0..near.len()).filter(|&e| near[e]).collect();
+        let full = if near.is_empty() {
+            Vec::new()
+        } else {
+            vec![Matrix3::identity(); elements]
+        };
         Self {
             in_use: vec![Matrix3::identity(); elements],
             sent: vec![Matrix3::identity(); elements],
             lag: 0.0,
+            near,
+            near_list,
+            full,
         }
+    }
+
+    /// The near block's elements and the rotations of the last full factor's matrix: a near
+    /// refresh assembles that matrix changed by those elements' turns since.
+    pub fn near_elements_and_full(&self) -> (&[usize], &[Matrix3<f64>]) {
+        (&self.near_list, &self.full)
     }
 
     /// Measures the lag of this step, whose elements have `rotations`, against the matrix of
     /// the factor it will use: the one in flight when `adopting` (it is due this step), else
-    /// the one in use. Returns it (also kept in [`LagGuard::lag`]).
+    /// the one in use; over the elements outside the near block. Returns it (also kept in
+    /// [`LagGuard::lag`]).
     pub fn measure(&mut self, adopting: bool, rotations: &[Matrix3<f64>]) -> f64 {
         let reference = if adopting { &self.sent } else { &self.in_use };
-        self.lag = largest_rotation_between(rotations, reference);
+        self.lag = if self.near.is_empty() {
+            largest_rotation_between(rotations, reference)
+        } else {
+            largest_rotation_where(rotations, reference, |e| !self.near[e])
+        };
         self.lag
+    }
+
+    /// The largest rotation of a near-block element since the matrix of the factor in use
+    /// [rad] (0 without a block).
+    pub fn near_lag(&self, rotations: &[Matrix3<f64>]) -> f64 {
+        if self.near.is_empty() {
+            return 0.0;
+        }
+        largest_rotation_where(rotations, &self.in_use, |e| self.near[e])
+    }
+
+    /// The near block of the factor in use was refactorised for `rotations`.
+    pub fn record_near(&mut self, rotations: &[Matrix3<f64>]) {
+        for &e in &self.near_list {
+            self.in_use[e] = rotations[e];
+        }
+    }
+
+    /// The whole factor was made at once from the last full matrix with the near block's
+    /// elements turned to `rotations` (a near refresh that fell back): that matrix is the new
+    /// full one.
+    pub fn record_near_full(&mut self, rotations: &[Matrix3<f64>]) {
+        for &e in &self.near_list {
+            self.in_use[e] = rotations[e];
+            self.full[e] = rotations[e];
+        }
+        self.lag = largest_rotation_where(rotations, &self.in_use, |e| !self.near[e]);
     }
 
     /// Records which matrix is in use (adopted) and which the step factorised or sent.
     pub fn record(&mut self, event: FactorEvent, rotations: &[Matrix3<f64>]) {
         if event.adopted == Adopted::Yes {
             std::mem::swap(&mut self.in_use, &mut self.sent);
+            if !self.full.is_empty() {
+                self.full.copy_from_slice(&self.in_use);
+            }
         }
         if event.immediate {
             self.in_use.copy_from_slice(rotations);
+            if !self.full.is_empty() {
+                self.full.copy_from_slice(rotations);
+            }
             self.lag = 0.0;
         } else if event.submitted {
             self.sent.copy_from_slice(rotations);

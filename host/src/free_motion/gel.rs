@@ -56,6 +56,14 @@ pub struct GelParams {
     /// The precision of the gel's factors ([`Precision::Single`]: `f32`, checked after each
     /// factorisation, see [`crate::linalg::SINGLE_PROBE_TOLERANCE`]).
     pub factor_precision: Precision,
+    /// The near block (one flag per mesh node; `None`: none): the dofs of these nodes are
+    /// eliminated last, and the block of the factor they span is refactorised on its own, at
+    /// once, when an element all of whose nodes are near has rotated by the adaptive refresh's
+    /// angle since the factor's matrix, the rest of the factor kept
+    /// ([`crate::linalg::TrailingBlock`]). The other elements drive the background pipeline as
+    /// before. Needs the nested-dissection ordering, the background factorisation with the
+    /// adaptive refresh and the direct solve; ignored otherwise.
+    pub near_nodes: Option<Vec<bool>>,
 }
 
 impl Default for GelParams {
@@ -75,6 +83,7 @@ impl Default for GelParams {
             refine: None,
             refresh: None,
             factor_precision: Precision::Double,
+            near_nodes: None,
         }
     }
 }
@@ -113,6 +122,21 @@ impl Elements for Tets {
 
     fn assemble(&self, slots: &[u32], values: &mut [f64]) {
         self.tetra.assemble(slots, values, 1.0);
+    }
+
+    fn add_rotation_change(
+        &self,
+        slots: &[u32],
+        values: &mut [f64],
+        elements: &[usize],
+        from: &[Matrix3<f64>],
+    ) {
+        let now = self.tetra.rotations();
+        for &e in elements {
+            self.tetra.assemble_element(e, &now[e], slots, values, 1.0);
+            self.tetra
+                .assemble_element(e, &from[e], slots, values, -1.0);
+        }
     }
 
     fn displace(
@@ -187,6 +211,17 @@ impl FeModel<Tets> {
             }
         };
         let coords: Vec<[f64; 3]> = (0..3 * n).map(|g| mesh.nodes[g / 3].into()).collect();
+        let near = params
+            .near_nodes
+            .as_ref()
+            .filter(|m| m.len() == n)
+            .map(|m| {
+                let dofs: Vec<bool> = (0..3 * n).map(|g| m[g / 3]).collect();
+                let elements: Vec<bool> = (mesh.tets.iter())
+                    .map(|t| t.iter().all(|&v| m[v]))
+                    .collect();
+                (dofs, elements)
+            });
         let nd = (ordering == FillOrdering::NestedDissection).then_some(coords.as_slice());
         let mut sorted = fixed_nodes.to_vec();
         sorted.sort_unstable();
@@ -210,6 +245,7 @@ impl FeModel<Tets> {
                 refine: params.refine.filter(|_| params.pcg.is_none()),
                 refresh: params.refresh.filter(|_| params.pcg.is_none()),
                 precision: params.factor_precision,
+                near,
             },
         )
     }

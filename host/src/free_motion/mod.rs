@@ -85,7 +85,7 @@ use crate::fem::FemError;
 use crate::linalg::{PcgOutcome, Precision, SymmetricMatrix};
 use background::LagGuard;
 use nalgebra::{Matrix3, Vector3};
-use system::{ReducedSystem, SystemLayout};
+use system::{NearRefresh, ReducedSystem, SystemLayout};
 
 /// The elements of an [`FeModel`]: what the gel's tetrahedra and the needle's beams do
 /// differently — internal forces, assembly, how an increment moves the nodes.
@@ -112,6 +112,19 @@ pub trait Elements {
     /// Adds the element stiffness `K(x)` of the last update into the matrix `values` through
     /// the entry `slots` (`u32::MAX`: an entry on a fixed dof).
     fn assemble(&self, slots: &[u32], values: &mut [f64]);
+
+    /// Adds, for each element of `elements`, its stiffness at its current rotation minus its
+    /// stiffness at rotation `from[e]` into `values` (the change of the assembled matrix when
+    /// those elements turn from `from` to now). Only elements with rotations implement it (the
+    /// near block of the gel); the default adds nothing.
+    fn add_rotation_change(
+        &self,
+        _slots: &[u32],
+        _values: &mut [f64],
+        _elements: &[usize],
+        _from: &[Matrix3<f64>],
+    ) {
+    }
 
     /// Moves the nodes by the increment `dx` (global dofs), ignoring the dofs `free` rejects.
     fn displace(
@@ -161,6 +174,9 @@ struct ModelLayout<'a> {
     refine: Option<PcgParams>,
     refresh: Option<RefreshParams>,
     precision: Precision,
+    /// Global dofs of the near block and the elements all of whose nodes are near (see
+    /// [`GelParams::near_nodes`]); `None`: no block.
+    near: Option<(Vec<bool>, Vec<bool>)>,
 }
 
 impl<E: Elements> FeModel<E> {
@@ -193,10 +209,15 @@ impl<E: Elements> FeModel<E> {
             refine: layout.refine,
             refresh: layout.refresh,
             precision: layout.precision,
+            near_dofs: layout.near.as_ref().map(|(dofs, _)| dofs.as_slice()),
         })?;
         // CG solves the current matrix: no rotation guard on the factor's age.
+        let near_elements = match layout.near {
+            Some((_, elements)) if sys.has_near() => elements,
+            _ => Vec::new(),
+        };
         let lag = (layout.background && layout.pcg.is_none())
-            .then(|| LagGuard::new(elements.rotations().len()));
+            .then(|| LagGuard::new(elements.rotations().len(), near_elements));
         Ok(Self {
             elements,
             positions,
@@ -281,6 +302,17 @@ impl<E: Elements> FeModel<E> {
     /// The assembled reduced matrix `K + M/h²` of the last factorisation (free dofs only).
     pub fn matrix(&self) -> &SymmetricMatrix {
         &self.sys.matrix
+    }
+
+    /// Refactorisations of the near block so far ([`GelParams::near_nodes`]; 0 without one).
+    pub fn near_refactorizations(&self) -> u64 {
+        self.sys.near_refreshes()
+    }
+
+    /// Whether the factor has a near block ([`GelParams::near_nodes`]): the option was given
+    /// and the factor allows it.
+    pub fn has_near_block(&self) -> bool {
+        self.sys.has_near()
     }
 
     /// Factorisations so far: (finished in the background and used, made at once) — `None`
@@ -409,6 +441,18 @@ impl<E: Elements> FeModel<E> {
         )?;
         if let Some(g) = self.lag.as_mut() {
             g.record(event, self.elements.rotations());
+            // The near block on its own, at once, when its elements rotated by the refresh's
+            // angle since the factor's matrix.
+            let rotations = self.elements.rotations();
+            if self.sys.has_near() && g.near_lag(rotations) >= self.sys.near_rotation() {
+                let (list, full) = g.near_elements_and_full();
+                let change = |v: &mut [f64]| elements.add_rotation_change(slots, v, list, full);
+                match self.sys.refresh_near(change)? {
+                    NearRefresh::None => {}
+                    NearRefresh::Block => g.record_near(rotations),
+                    NearRefresh::Full => g.record_near_full(rotations),
+                }
+            }
         }
         self.sys.stage_refine(|v| elements.assemble(slots, v));
         let stamp = self.sys.factor_stamp();

@@ -158,6 +158,7 @@ impl FeModel<Beams> {
                 // The beams' matrix spans stiffnesses far apart (axial, bending, M/h²): in
                 // f32 it is not numerically positive definite. It is small: always f64.
                 precision: Precision::Double,
+                near: None,
             },
         )
     }

@@ -5,8 +5,8 @@
 use super::background::{Adopted, Background, FactorEvent, Job, LAG_ROTATION_LIMIT, RefreshParams};
 use crate::fem::FemError;
 use crate::linalg::{
-    Cholesky, PcgOutcome, PcgWork, Precision, SymmetricMatrix, SymmetricPattern,
-    nested_dissection_order, pcg_solve, pcg_solve_from,
+    Cholesky, PcgOutcome, PcgWork, Precision, SymmetricMatrix, SymmetricPattern, TrailingBlock,
+    nested_dissection_order, nested_dissection_order_with_last, pcg_solve, pcg_solve_from,
 };
 
 /// Marks a fixed (eliminated) dof in the global → reduced map.
@@ -43,6 +43,30 @@ pub(super) struct ReducedSystem {
     pub pcg: Option<PcgState>,
     /// Refined-step mode: the step's own matrix and the CG scratch.
     pub refine: Option<RefineState>,
+    /// The near block: the dofs eliminated last, refactorised on their own
+    /// ([`ReducedSystem::refresh_near`]).
+    near: Option<NearBlock>,
+}
+
+/// What [`ReducedSystem::refresh_near`] did.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum NearRefresh {
+    /// Nothing: no block, or none captured from the factor in use.
+    None,
+    /// The near block was refactorised.
+    Block,
+    /// The block was not positive definite: the whole matrix was factorised at once.
+    Full,
+}
+
+/// The near block of the factor ([`TrailingBlock`]) and the scratch matrix its refreshes are
+/// assembled into.
+#[derive(Debug)]
+struct NearBlock {
+    block: TrailingBlock,
+    matrix: SymmetricMatrix,
+    /// Refactorisations of the block so far.
+    refreshes: u64,
 }
 
 /// Settings of the preconditioned-CG free motion (see the module docs of
@@ -110,6 +134,9 @@ pub(super) struct SystemLayout<'a, I: Iterator<Item = (usize, usize)>, F: Fn() -
     pub refresh: Option<RefreshParams>,
     /// The precision of the factors (see [`Precision`]).
     pub precision: Precision,
+    /// Global dofs eliminated last, whose block of the factor is refactorised on its own
+    /// ([`ReducedSystem::refresh_near`]); needs `dof_coords` and the direct solve.
+    pub near_dofs: Option<&'a [bool]>,
 }
 
 impl ReducedSystem {
@@ -149,12 +176,37 @@ impl ReducedSystem {
             .map(|k| pattern.slot(k, k).unwrap_or(0))
             .collect();
         let regularization = free.iter().map(|&g| layout.regularization[g]).collect();
+        // The near dofs (free ones), eliminated last; only with the direct solve.
+        let near_free: Option<Vec<bool>> = layout
+            .near_dofs
+            .filter(|_| layout.pcg.is_none() && layout.refine.is_none())
+            .filter(|_| layout.background && layout.refresh.is_some())
+            .map(|m| {
+                free.iter()
+                    .map(|&g| m.get(g).copied().unwrap_or(false))
+                    .collect()
+            });
         let order = layout.dof_coords.map(|c| {
             let reduced: Vec<[f64; 3]> = free.iter().map(|&g| c[g]).collect();
-            nested_dissection_order(&pattern, &reduced)
+            match &near_free {
+                Some(last) => nested_dissection_order_with_last(&pattern, &reduced, last),
+                None => nested_dissection_order(&pattern, &reduced),
+            }
         });
         let chol =
             Cholesky::try_new_with_precision(&pattern, order.as_deref(), 1, layout.precision)?;
+        let near_count = near_free
+            .as_ref()
+            .map_or(0, |m| m.iter().filter(|x| **x).count());
+        // A factor too small for supernodes (or no near dof, or no ordering) keeps no block.
+        let near = (order.is_some() && near_count > 0)
+            .then(|| TrailingBlock::new(&chol, &pattern, free.len() - near_count).ok())
+            .flatten()
+            .map(|block| NearBlock {
+                block,
+                matrix: SymmetricMatrix::zeros(pattern.clone()),
+                refreshes: 0,
+            });
         let background = if layout.background {
             Some(Background::start(
                 &pattern,
@@ -198,6 +250,7 @@ impl ReducedSystem {
                 background,
                 pcg,
                 refine,
+                near,
             },
             slots,
         ))
@@ -387,6 +440,9 @@ impl ReducedSystem {
             self.stage_background(&write);
         }
         let adopted = self.adopt_background()?;
+        if adopted == Adopted::Yes {
+            self.capture_near();
+        }
         event.adopted = adopted;
         match adopted {
             Adopted::Yes => self.factor_age = Some(0),
@@ -651,7 +707,73 @@ impl ReducedSystem {
         self.factor_age = Some(0);
         self.matrix_age = Some(0);
         self.refactor_requested = false;
+        self.capture_near();
         Ok(())
+    }
+
+    /// After a full factorisation of `matrix` (at once or adopted): the near block's far
+    /// contribution from it. A block that cannot be captured is dropped (full refreshes only).
+    fn capture_near(&mut self) {
+        if let Some(near) = self.near.as_mut()
+            && near.block.capture(&self.chol, &self.matrix).is_err()
+        {
+            self.near = None;
+        }
+    }
+
+    /// Whether the factor has a near block ([`Self::refresh_near`]).
+    pub fn has_near(&self) -> bool {
+        self.near.is_some()
+    }
+
+    /// The near block is refactorised when one of its elements has rotated by this much since
+    /// the matrix of the factor in use [rad]: the adaptive refresh's angle.
+    pub fn near_rotation(&self) -> f64 {
+        self.refresh.map_or(LAG_ROTATION_LIMIT, |r| r.rotation)
+    }
+
+    /// Refactorisations of the near block so far.
+    pub fn near_refreshes(&self) -> u64 {
+        self.near.as_ref().map_or(0, |n| n.refreshes)
+    }
+
+    /// Refactorises the near block of the factor in use, the rest of the factor kept, for the
+    /// matrix of the last full factorisation changed by `change`: the elements all of whose
+    /// nodes are near, turned from their rotations in that matrix to their current ones (only
+    /// such elements change the block alone; every element keeps one rotation, so the matrix
+    /// is an assembled stiffness, positive definite). The other elements keep the full
+    /// factor's rotations: the caller refreshes the whole factor when they have rotated.
+    /// Returns what it did: nothing (no block, or no far contribution captured from the factor
+    /// in use), the block, or, for a block that is not positive definite nonetheless, a full
+    /// factorisation at once of the matrix so changed.
+    ///
+    /// # Errors
+    /// A failed full factorisation, or a stopped background thread.
+    pub fn refresh_near(
+        &mut self,
+        change: impl FnOnce(&mut [f64]),
+    ) -> Result<NearRefresh, FemError> {
+        let Some(near) = self.near.as_mut() else {
+            return Ok(NearRefresh::None);
+        };
+        if near.block.captured() != self.chol.stamp() || !self.chol.is_factorized() {
+            return Ok(NearRefresh::None);
+        }
+        near.matrix.values.copy_from_slice(&self.matrix.values);
+        change(&mut near.matrix.values);
+        if near.block.refactor(&mut self.chol, &near.matrix).is_ok() {
+            near.refreshes += 1;
+            self.factor_age = Some(0);
+            return Ok(NearRefresh::Block);
+        }
+        // Not positive definite as mixed: this step's whole matrix, at once.
+        std::mem::swap(&mut self.matrix, &mut near.matrix);
+        self.discard_background()?;
+        self.factorize_now()?;
+        if let Some(bg) = self.background.as_mut() {
+            bg.immediate += 1;
+        }
+        Ok(NearRefresh::Full)
     }
 
     /// The stamp of the factor in use ([`crate::linalg::Cholesky::stamp`]).

@@ -153,6 +153,9 @@ pub struct RunSummary {
     /// elements rotated more than `LAG_ROTATION_LIMIT` since the previous one; with
     /// `solver.gel_solve = "pcg"`, steps whose CG did not converge).
     pub immediate_factorizations: u64,
+    /// Refactorisations of the gel factor's near block alone (`solver.near_radius`; 0
+    /// without it).
+    pub near_factorizations: u64,
     /// `solver.gel_solve = "pcg"` or `"refine"`: CG iterations per step solved (or refined)
     /// by CG, mean (0 with the direct solve).
     pub pcg_iterations_mean: f64,
@@ -399,6 +402,7 @@ impl Statistics {
             shortened_steps: count_flag(reports, StatusFlags::BACKTRACKED),
             background_factorizations: background.0,
             immediate_factorizations: background.1,
+            near_factorizations: world.gel.near_refactorizations(),
             pcg_iterations_mean: pcg.map_or(0.0, |p| {
                 if p.steps == 0 {
                     0.0

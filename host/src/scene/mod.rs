@@ -537,6 +537,14 @@ pub struct SolverSpec {
     /// always double.
     #[serde(default = "default_factor_precision")]
     pub factor_precision: FactorPrecisionSpec,
+    /// The near block [mm]: the gel's nodes within this distance of the planned path (and of
+    /// its straight approach) are eliminated last in the gel's factor, and the block they span
+    /// is refactorised on its own, at once, when one of its elements has rotated by
+    /// `refresh_rotation`; the elements elsewhere drive the background factorisation as before.
+    /// Absent (the default): none. Needs `background_factorization`, `refresh_rotation > 0`
+    /// and `gel_solve = "direct"`; ignored otherwise.
+    #[serde(default)]
+    pub near_radius: Option<f64>,
 }
 
 /// The precision of the gel's factor (`solver.factor_precision`).
@@ -591,6 +599,7 @@ impl Default for SolverSpec {
             refresh_rotation: default_refresh_rotation(),
             refresh_ceiling: None,
             factor_precision: default_factor_precision(),
+            near_radius: None,
         }
     }
 }

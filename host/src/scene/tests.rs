@@ -250,6 +250,13 @@ fn factorisation_defaults_follow_the_mode() {
     }
     let e = set(&[("solver.refresh_ceiling", "0")]).unwrap_err();
     assert_eq!(e.field, "solver.refresh_ceiling");
+    let near = set(&[("solver.near_radius", "8.5")]).unwrap();
+    assert_eq!(near.solver.near_radius, Some(8.5));
+    for bad in ["0", "-1", "nan", "inf"] {
+        let e = set(&[("solver.near_radius", bad)]).unwrap_err();
+        assert_eq!(e.field, "solver.near_radius", "{bad}");
+        assert!(e.to_string().contains("positive distance"), "{e}");
+    }
     assert_eq!(
         s.solver.factor_precision,
         FactorPrecisionSpec::Single,

@@ -474,6 +474,14 @@ impl Scene {
                 format!("must be between 1 and 10000 when given (got {c})"),
             );
         }
+        if let Some(r) = s.near_radius
+            && !(r > 0.0 && r.is_finite())
+        {
+            return fail(
+                "solver.near_radius",
+                format!("must be a positive distance [mm] when given (got {r})"),
+            );
+        }
         Ok(())
     }
 
