@@ -8,6 +8,9 @@
 //!   `f64`; `…_f32`: the single-precision factor, with the probe solve that checks it;
 //! - `solve_gel_<n>_nodes`: one solve with the current factor (and `…_30_rhs`: 30 at once;
 //!   `…_f32`: with the single-precision factor);
+//! - `factor_near_block_<n>_nodes_f32`: the refactorisation of the single-precision factor's
+//!   near block alone (the nodes within 10 mm of the box's vertical centre line eliminated last;
+//!   `solver.near_radius`);
 //! - `polar/rotations_<n>_nodes`: the element rotations (polar decompositions of the deformation
 //!   gradients) of the whole gel, eight elements per SIMD pass; `…_scalar`: one by one, the same
 //!   rotations bit for bit; `polar/update_and_forces_<n>_nodes`: the rotations and the internal
@@ -21,7 +24,7 @@
 use criterion::{Criterion, criterion_group, criterion_main};
 use needle_host::fem::tetra::{rotation_from_deformation, rotations_from_deformations};
 use needle_host::free_motion::{FillOrdering, GelModel, GelParams};
-use needle_host::linalg::Precision;
+use needle_host::linalg::{Cholesky, Precision, TrailingBlock, nested_dissection_order_with_last};
 use std::hint::black_box;
 
 mod common;
@@ -114,6 +117,49 @@ fn bench_gel(c: &mut Criterion) {
     }
 }
 
+/// `gel/factor_near_block_<n>_nodes_f32`: the refactorisation of the near block alone
+/// (`solver.near_radius`, `linalg::TrailingBlock`) of the benchmark gel's single-precision
+/// factor, the nodes within 10 mm of the box's vertical centre line (the insertion's path)
+/// eliminated last; against `factor_gel_<n>_nodes_f32`, the whole factor.
+fn bench_near_block(c: &mut Criterion) {
+    let mut group = c.benchmark_group("gel");
+    group.sample_size(10);
+    for target in [1800, 5000, 20_000] {
+        let model = gel(target);
+        let a = model.matrix().clone();
+        let fixed = model.fixed_nodes();
+        // The reduced dofs: the free ones in global order.
+        let free: Vec<usize> = (0..model.dof_count())
+            .filter(|g| fixed.binary_search(&(g / 3)).is_err())
+            .collect();
+        let nodes = &model.mesh().nodes;
+        let coords: Vec<[f64; 3]> = free.iter().map(|&g| nodes[g / 3].into()).collect();
+        let near: Vec<bool> = (free.iter())
+            .map(|&g| {
+                let p = nodes[g / 3];
+                ((p.x - 300.0).powi(2) + p.y.powi(2)).sqrt() <= 10.0
+            })
+            .collect();
+        let order = nested_dissection_order_with_last(a.pattern(), &coords, &near);
+        let mut chol =
+            Cholesky::try_new_with_precision(a.pattern(), Some(&order), 1, Precision::Single)
+                .expect("symbolic");
+        chol.factorize(&a).expect("SPD");
+        let n_near = near.iter().filter(|x| **x).count();
+        let mut block =
+            TrailingBlock::new(&chol, a.pattern(), free.len() - n_near).expect("supernodal");
+        block.capture(&chol, &a).expect("captured");
+        eprintln!(
+            "gel target {target}: near block of {n_near} of {} dofs",
+            free.len()
+        );
+        group.bench_function(format!("factor_near_block_{target}_nodes_f32"), |b| {
+            b.iter(|| block.refactor(&mut chol, black_box(&a)).expect("SPD"))
+        });
+    }
+    group.finish();
+}
+
 fn bench_needle(c: &mut Criterion) {
     let (mut needle, f) = common::loaded_needle();
     c.bench_function("free_motion_needle_40_beams", |b| {
@@ -155,5 +201,11 @@ fn bench_polar(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, bench_gel, bench_polar, bench_needle);
+criterion_group!(
+    benches,
+    bench_gel,
+    bench_near_block,
+    bench_polar,
+    bench_needle
+);
 criterion_main!(benches);
