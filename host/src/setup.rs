@@ -305,11 +305,19 @@ pub fn gel_params(scene: &Scene) -> GelParams {
     }
 }
 
-/// The gel's nodes within `solver.near_radius` of the planned path at rest or of its straight
+/// The gel's nodes within `solver.near_radius` (as [`crate::scene::NearRadiusSpec::radius`] resolves it for
+/// this mesh) of the planned path at rest or of its straight
 /// approach above the entry point (`None` without the option): the near block of
 /// [`GelParams::near_nodes`].
 pub fn near_nodes(scene: &Scene, mesh: &TetMesh, path: &SampledPath) -> Option<Vec<bool>> {
-    let radius = scene.solver.near_radius?;
+    let radius = scene
+        .solver
+        .near_radius
+        .radius(mesh.node_count(), mesh.total_volume())?;
+    tracing::debug!(
+        radius,
+        "the gel's near block: nodes within {radius:.1} mm of the path"
+    );
     let entry = path.entry();
     let back = -path.entry_tangent() * path.approach;
     let segments = path

@@ -250,12 +250,37 @@ fn factorisation_defaults_follow_the_mode() {
     }
     let e = set(&[("solver.refresh_ceiling", "0")]).unwrap_err();
     assert_eq!(e.field, "solver.refresh_ceiling");
+    assert_eq!(s.solver.near_radius, NearRadiusSpec::Auto, "the default");
+    let box_volume = 80.0 * 60.0 * 60.0;
+    assert_eq!(
+        s.solver
+            .near_radius
+            .radius(NEAR_AUTO_MIN_NODES - 1, box_volume),
+        None
+    );
+    let at = |nodes| s.solver.near_radius.radius(nodes, box_volume).unwrap();
+    assert!((at(5040) - 9.8).abs() < 0.05, "{}", at(5040));
+    assert!((at(19_800) - 7.7).abs() < 0.05, "{}", at(19_800));
     let near = set(&[("solver.near_radius", "8.5")]).unwrap();
-    assert_eq!(near.solver.near_radius, Some(8.5));
+    assert_eq!(near.solver.near_radius, NearRadiusSpec::Radius(8.5));
+    assert_eq!(
+        near.solver.near_radius.radius(10, 1.0),
+        Some(8.5),
+        "whatever the gel"
+    );
+    let off = set(&[("solver.near_radius", "\"off\"")]).unwrap();
+    assert_eq!(off.solver.near_radius.radius(100_000, box_volume), None);
+    let auto = set(&[("solver.near_radius", "\"auto\"")]).unwrap();
+    assert_eq!(auto.solver.near_radius, NearRadiusSpec::Auto);
     for bad in ["0", "-1", "nan", "inf"] {
         let e = set(&[("solver.near_radius", bad)]).unwrap_err();
         assert_eq!(e.field, "solver.near_radius", "{bad}");
         assert!(e.to_string().contains("positive distance"), "{e}");
+    }
+    for bad in ["\"sometimes\"", "true"] {
+        let e = set(&[("solver.near_radius", bad)]).unwrap_err();
+        assert!(e.to_string().contains("solver.near_radius"), "{bad}: {e}");
+        assert!(e.to_string().contains("\"auto\" or \"off\""), "{bad}: {e}");
     }
     assert_eq!(
         s.solver.factor_precision,

@@ -3,7 +3,7 @@
 //! insertion), each value against its physical meaning and a range where a number far outside
 //! it can only be a typo or an attack (a needle of 10³⁰⁰ MPa, a time step of 10⁻³⁰⁰ s).
 
-use super::{PoseSpec, SampledPath, Scene};
+use super::{NearRadiusSpec, PoseSpec, SampledPath, Scene};
 use crate::free_motion::LAG_ROTATION_LIMIT;
 use needle_core::kinematics::{Kinematics, Robot};
 
@@ -474,12 +474,12 @@ impl Scene {
                 format!("must be between 1 and 10000 when given (got {c})"),
             );
         }
-        if let Some(r) = s.near_radius
+        if let NearRadiusSpec::Radius(r) = s.near_radius
             && !(r > 0.0 && r.is_finite())
         {
             return fail(
                 "solver.near_radius",
-                format!("must be a positive distance [mm] when given (got {r})"),
+                format!("must be a positive distance [mm], \"auto\" or \"off\" (got {r})"),
             );
         }
         Ok(())
