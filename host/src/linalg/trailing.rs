@@ -19,7 +19,7 @@
 use super::{Cholesky, LinalgError, SymmetricMatrix, SymmetricPattern};
 use faer::dyn_stack::{MemBuffer, MemStack, StackReq};
 use faer::linalg::cholesky::llt::factor::LltRegularization;
-use faer::linalg::matmul::matmul;
+use faer::linalg::matmul::triangular::{self, BlockStructure};
 use faer::sparse::linalg::SupernodalThreshold;
 use faer::sparse::linalg::cholesky::{
     CholeskySymbolicParams, SymbolicCholesky, SymbolicCholeskyRaw, SymmetricOrdering,
@@ -44,6 +44,10 @@ pub struct TrailingBlock {
     symbolic: SymbolicCholesky<usize>,
     /// `C = A₀_tt − L_tt L_ttᵀ` on the block's pattern.
     c: Vec<f64>,
+    /// The slot in `c` of every lower-triangular entry of each panel's `Y Yᵀ` in
+    /// [`TrailingBlock::capture`] (panels in order, column by column), found at the first
+    /// capture: the pattern is the block's for good.
+    capture_slots: Vec<u32>,
     /// The stamp of the full factorisation `C` was captured from (0: none).
     captured: u64,
     /// Each entry of `L_tt`: (index in the main factor's values, index in the block factor's).
@@ -241,6 +245,7 @@ impl TrailingBlock {
             row_idx,
             symbolic,
             c: vec![0.0; nnz],
+            capture_slots: Vec::new(),
             captured: 0,
             l_map,
             a: vec![0.0; nnz],
@@ -287,6 +292,30 @@ impl TrailingBlock {
             .map(|k| range.start + k)
     }
 
+    /// The slots in `c` of each panel's lower-triangular `Y Yᵀ` entries, in the order
+    /// [`TrailingBlock::capture`] visits them.
+    fn find_capture_slots(&self, panels: &[Panel<'_>]) -> Result<Vec<u32>, LinalgError> {
+        let first = self.first;
+        let mut slots = Vec::new();
+        let mut rows = Vec::new();
+        for p in panels {
+            let (b, e) = (p.begin, p.end);
+            let j0 = first.max(b) - b;
+            rows.clear();
+            rows.extend((b + j0)..e);
+            rows.extend_from_slice(p.rows);
+            for j in 0..rows.len() {
+                for i in j..rows.len() {
+                    let slot = self
+                        .slot(rows[i] - first, rows[j] - first)
+                        .ok_or(LinalgError::Symbolic)?;
+                    slots.push(u32::try_from(slot).map_err(|_| LinalgError::Symbolic)?);
+                }
+            }
+        }
+        Ok(slots)
+    }
+
     /// Keeps `C = A₀_tt − L_tt L_ttᵀ` from `chol`, freshly factorised from `a0`, for later
     /// [`TrailingBlock::refactor`]s.
     ///
@@ -303,13 +332,14 @@ impl TrailingBlock {
         }
         // − L_tt L_ttᵀ, supernode by supernode: Y Yᵀ of the block's rows of its columns.
         let first = self.first;
-        let mut rows = Vec::new();
-        for p in panels(&chol.symbolic, first).ok_or(LinalgError::Symbolic)? {
+        let panels = panels(&chol.symbolic, first).ok_or(LinalgError::Symbolic)?;
+        if self.capture_slots.is_empty() {
+            self.capture_slots = self.find_capture_slots(&panels)?;
+        }
+        let mut next = 0;
+        for p in &panels {
             let (b, e, nrows, base) = (p.begin, p.end, p.nrows(), p.base);
             let j0 = first.max(b) - b;
-            rows.clear();
-            rows.extend((b + j0)..e);
-            rows.extend_from_slice(p.rows);
             let (ny, nc) = (nrows - j0, (e - b) - j0);
             let value = |i: usize, j: usize| -> f64 {
                 let idx = base + (j0 + j) * nrows + (j0 + i);
@@ -320,20 +350,24 @@ impl TrailingBlock {
             };
             let y = Mat::<f64>::from_fn(ny, nc, |i, j| if i >= j { value(i, j) } else { 0.0 });
             let mut yyt = Mat::<f64>::zeros(ny, ny);
-            matmul(
+            // The lower triangle alone: C is symmetric and stored so.
+            triangular::matmul(
                 yyt.as_mut(),
+                BlockStructure::TriangularLower,
                 Accum::Replace,
                 y.as_ref(),
+                BlockStructure::Rectangular,
                 y.as_ref().transpose(),
+                BlockStructure::Rectangular,
                 1.0,
                 Par::Seq,
             );
             for j in 0..ny {
-                for i in j..ny {
-                    let slot = self
-                        .slot(rows[i] - first, rows[j] - first)
-                        .ok_or(LinalgError::Symbolic)?;
-                    self.c[slot] -= yyt[(i, j)];
+                let column = &yyt.col_as_slice(j)[j..];
+                let slots = &self.capture_slots[next..next + column.len()];
+                next += column.len();
+                for (&slot, v) in slots.iter().zip(column) {
+                    self.c[slot as usize] -= v;
                 }
             }
         }
