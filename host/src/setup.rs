@@ -292,6 +292,7 @@ pub fn gel_params(scene: &Scene) -> GelParams {
         }),
         refresh: (scene.solver.refresh_rotation > 0.0).then_some(RefreshParams {
             rotation: scene.solver.refresh_rotation,
+            far_rotation: scene.solver.far_refresh_rotation(),
             ceiling: scene
                 .solver
                 .refresh_ceiling

@@ -148,6 +148,7 @@ fn single_precision_gel_pipeline_reaches_the_double_equilibrium() {
         refactor_every: 2,
         refresh: Some(RefreshParams {
             rotation: 0.05,
+            far_rotation: 0.05,
             ceiling: 16,
         }),
         factor_precision: Precision::Single,

@@ -545,6 +545,7 @@ enum Refresh {
 fn background_factorisation_adaptive_refresh_solves_with_the_rules_matrix() {
     let refresh = RefreshParams {
         rotation: 0.01,
+        far_rotation: 0.01,
         ceiling: 6,
     };
     for every in [2, 3] {
@@ -1071,6 +1072,7 @@ fn adaptive_box(ceiling: usize) -> (TetMesh, Vec<usize>, GelParams) {
         refactor_every: 2,
         refresh: Some(RefreshParams {
             rotation: 0.05,
+            far_rotation: 0.05,
             ceiling,
         }),
         ..params

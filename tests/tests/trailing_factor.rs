@@ -225,16 +225,7 @@ fn trailing_order_puts_the_marked_rows_last_and_keeps_the_plain_order_otherwise(
 #[test]
 fn near_block_steps_solve_with_a_far_matrix_and_a_later_near_block() {
     use needle_host::free_motion::{GelModel, GelParams, RefreshParams};
-    use needle_host::mesh::BoxDivisions;
-    let (mesh, bottom) = needle_tests::clamped_box(BoxDivisions {
-        nx: 12,
-        ny: 6,
-        nz: 6,
-    });
-    // The nodes within 5 mm of the vertical line through the box's centre.
-    let near: Vec<bool> = (mesh.nodes.iter())
-        .map(|p| ((p.x - 20.0).powi(2) + (p.y - 10.0).powi(2)).sqrt() <= 5.0)
-        .collect();
+    let (mesh, bottom, near) = box_with_near_column();
     let plain = GelParams {
         time_step: Some(0.05),
         density: 1e-8,
@@ -245,6 +236,7 @@ fn near_block_steps_solve_with_a_far_matrix_and_a_later_near_block() {
         refactor_every: 2,
         refresh: Some(RefreshParams {
             rotation: 0.01,
+            far_rotation: 0.01,
             ceiling: usize::MAX,
         }),
         near_nodes: Some(near.clone()),
@@ -350,6 +342,65 @@ fn near_block_steps_solve_with_a_far_matrix_and_a_later_near_block() {
     );
 }
 
+/// The 637-node clamped box of the run-level tests, and its near column: the nodes within 5 mm
+/// of the vertical line through the box's centre.
+fn box_with_near_column() -> (needle_host::mesh::TetMesh, Vec<usize>, Vec<bool>) {
+    let (mesh, bottom) = needle_tests::clamped_box(needle_host::mesh::BoxDivisions {
+        nx: 12,
+        ny: 6,
+        nz: 6,
+    });
+    let near = (mesh.nodes.iter())
+        .map(|p| ((p.x - 20.0).powi(2) + (p.y - 10.0).powi(2)).sqrt() <= 5.0)
+        .collect();
+    (mesh, bottom, near)
+}
+
 fn model_dofs(mesh: &needle_host::mesh::TetMesh) -> usize {
     3 * mesh.nodes.len()
+}
+
+/// `RefreshParams::far_rotation` drives the background pipeline when the gel has a near block:
+/// the far elements then send fewer matrices to be factorised with a larger one, while the near
+/// block is still refreshed at `rotation`.
+#[test]
+fn far_rotation_sends_fewer_far_matrices_and_keeps_the_near_refreshes() {
+    use needle_host::free_motion::{GelModel, GelParams, RefreshParams};
+    let (mesh, bottom, near) = box_with_near_column();
+    let top = mesh.nodes_on_plane(2, 20.0, 1e-9);
+    let run = |far_rotation: f64| {
+        let params = GelParams {
+            time_step: Some(0.05),
+            density: 1e-8,
+            background_factorization: true,
+            refactor_every: 2,
+            refresh: Some(RefreshParams {
+                rotation: 0.01,
+                far_rotation,
+                ceiling: usize::MAX,
+            }),
+            near_nodes: Some(near.clone()),
+            ..GelParams::default()
+        };
+        let mut model = GelModel::try_new(mesh.clone(), &bottom, &params).unwrap();
+        for k in 0..28 {
+            // The whole top face pushed sideways then back: near and far elements turn.
+            let mut f = vec![0.0; model_dofs(&mesh)];
+            for &i in &top {
+                f[3 * i] = if k < 14 { 4e-3 } else { -4e-3 };
+            }
+            let dx = model.free_motion(&f).unwrap().to_vec();
+            model.apply_displacement(&dx).unwrap();
+        }
+        let (background, immediate) = model.background_counts().unwrap();
+        (background + immediate, model.near_refactorizations())
+    };
+    let (full_tight, near_tight) = run(0.01);
+    let (full_loose, near_loose) = run(0.1);
+    println!("full factorisations {full_tight} -> {full_loose}, near {near_tight} -> {near_loose}");
+    assert!(
+        full_loose < full_tight,
+        "far_rotation 0.1 made {full_loose} full factorisations, 0.01 made {full_tight}"
+    );
+    assert!(near_loose >= 1, "the near block is still refreshed");
 }

@@ -28,6 +28,10 @@ pub const LAG_ROTATION_LIMIT: f64 = 0.2;
 pub struct RefreshParams {
     /// Refresh when an element has rotated by this much or more since the matrix in use [rad].
     pub rotation: f64,
+    /// With a near block ([`super::GelParams::near_nodes`]): `rotation` for the elements not
+    /// all of whose nodes are near (the near ones refresh the block at `rotation`); without
+    /// one, unused.
+    pub far_rotation: f64,
     /// Refresh at the latest when the matrix in use is this many steps old.
     pub ceiling: usize,
 }

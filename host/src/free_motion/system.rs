@@ -488,7 +488,13 @@ impl ReducedSystem {
         let Some(p) = self.refresh else {
             return true;
         };
-        lag.is_none_or(|l| !(l < p.rotation)) || matrix_age.is_none_or(|a| a >= p.ceiling)
+        // With a near block, `lag` is the far elements' (the near ones refresh the block).
+        let rotation = if self.has_near() {
+            p.far_rotation
+        } else {
+            p.rotation
+        };
+        lag.is_none_or(|l| !(l < rotation)) || matrix_age.is_none_or(|a| a >= p.ceiling)
     }
 
     /// Preconditioned-CG mode: the free-motion solve of a step. Writes this step's matrix

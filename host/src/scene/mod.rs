@@ -548,6 +548,14 @@ pub struct SolverSpec {
     /// otherwise.
     #[serde(default)]
     pub near_radius: NearRadiusSpec,
+    /// With a near block (`near_radius`): the rotation of an element not all of whose nodes
+    /// are near, since the matrix of the factor in use, that sends a matrix to the background
+    /// factorisation [rad], at most [`crate::free_motion::LAG_ROTATION_LIMIT`]. Absent (the
+    /// default): `refresh_rotation`. The near elements refresh the block at
+    /// `refresh_rotation`. A larger value factorises the whole gel less often, at some cost in
+    /// accuracy on heavily loaded gels (measured in `docs/architecture.md`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub far_refresh_rotation: Option<f64>,
 }
 
 /// `solver.near_radius = "auto"`: how far from the planned path the elements that turn most
@@ -651,6 +659,11 @@ pub enum GelSolveSpec {
 }
 
 impl SolverSpec {
+    /// `far_refresh_rotation` as set, or its default `refresh_rotation`.
+    pub fn far_refresh_rotation(&self) -> f64 {
+        self.far_refresh_rotation.unwrap_or(self.refresh_rotation)
+    }
+
     /// `refactor_every` as set, or its default: with `gel_solve = "direct"`, 2 with the
     /// background factorisation and 1 without; with `"pcg"`, [`PCG_REFACTOR_EVERY`].
     pub fn refactor_every(&self) -> u32 {
@@ -678,6 +691,7 @@ impl Default for SolverSpec {
             refresh_ceiling: None,
             factor_precision: default_factor_precision(),
             near_radius: NearRadiusSpec::Auto,
+            far_refresh_rotation: None,
         }
     }
 }

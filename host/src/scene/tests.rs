@@ -1,4 +1,5 @@
 use super::*;
+use crate::free_motion::LAG_ROTATION_LIMIT;
 use nalgebra::Vector3;
 
 fn err_of(text: &str) -> SceneError {
@@ -276,6 +277,16 @@ fn factorisation_defaults_follow_the_mode() {
         let e = set(&[("solver.near_radius", bad)]).unwrap_err();
         assert_eq!(e.field, "solver.near_radius", "{bad}");
         assert!(e.to_string().contains("positive distance"), "{e}");
+    }
+    assert_eq!(s.solver.far_refresh_rotation(), s.solver.refresh_rotation);
+    let far = set(&[("solver.far_refresh_rotation", "0.08")]).unwrap();
+    assert_eq!(far.solver.far_refresh_rotation(), 0.08);
+    let limit = LAG_ROTATION_LIMIT.to_string();
+    let at_limit = set(&[("solver.far_refresh_rotation", limit.as_str())]).unwrap();
+    assert_eq!(at_limit.solver.far_refresh_rotation(), LAG_ROTATION_LIMIT);
+    for bad in ["0", "-0.1", "0.3", "nan"] {
+        let e = set(&[("solver.far_refresh_rotation", bad)]).unwrap_err();
+        assert_eq!(e.field, "solver.far_refresh_rotation", "{bad}");
     }
     for bad in ["\"sometimes\"", "true"] {
         let e = set(&[("solver.near_radius", bad)]).unwrap_err();

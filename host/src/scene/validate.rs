@@ -474,6 +474,17 @@ impl Scene {
                 format!("must be between 1 and 10000 when given (got {c})"),
             );
         }
+        if let Some(r) = s.far_refresh_rotation
+            && !(r > 0.0 && r <= LAG_ROTATION_LIMIT)
+        {
+            return fail(
+                "solver.far_refresh_rotation",
+                format!(
+                    "must be above 0 and at most {LAG_ROTATION_LIMIT} rad (the rotation that \
+                     factorises at once) when given (got {r})"
+                ),
+            );
+        }
         if let NearRadiusSpec::Radius(r) = s.near_radius
             && !(r > 0.0 && r.is_finite())
         {
