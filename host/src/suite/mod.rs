@@ -33,6 +33,9 @@ pub struct SuiteOptions {
     pub benchmarks: bool,
     /// Overrides applied to every scene (`("inverse.delta_q", "0.001")`).
     pub overrides: Vec<(String, String)>,
+    /// Nodes of every generated box gel (`gel.box.nodes`, set before `overrides`); gels read
+    /// from mesh files keep their own. `None`: each scene's own.
+    pub nodes: Option<usize>,
     /// Cap on the steps of every run (default: the whole path).
     pub steps: Option<usize>,
     /// The controllers compared, each on every scene; the first one's outcomes make the exit
@@ -104,6 +107,23 @@ pub fn scene_list(opts: &SuiteOptions) -> std::io::Result<Vec<(String, Option<Pa
     Ok(out)
 }
 
+/// The overrides of one scene under `variant`: the box gel's nodes ([`SuiteOptions::nodes`],
+/// when the scene generates a box), then [`SuiteOptions::overrides`], then the variant's.
+pub fn scene_overrides(
+    scene: &Scene,
+    opts: &SuiteOptions,
+    variant: &Variant,
+) -> Vec<(String, String)> {
+    let nodes = opts
+        .nodes
+        .filter(|_| scene.gel.box_mesh.is_some())
+        .map(|n| ("gel.box.nodes".to_owned(), n.to_string()));
+    (nodes.into_iter())
+        .chain(opts.overrides.iter().cloned())
+        .chain(variant.overrides.iter().cloned())
+        .collect()
+}
+
 /// Runs one scene of the suite (`file` none: the embedded scene `name`) with the controller
 /// `variant`; `observe` sees every step.
 pub fn run_scene(
@@ -113,17 +133,16 @@ pub fn run_scene(
     variant: &Variant,
     mut observe: impl FnMut(usize),
 ) -> SuiteRow {
-    let overrides: Vec<(String, String)> = (opts.overrides.iter())
-        .chain(&variant.overrides)
-        .cloned()
-        .collect();
     let t0 = Instant::now();
     let loaded = match file {
         Some(f) => Scene::load(f).map_err(|e| e.to_string()),
         None => Scene::builtin(name).ok_or_else(|| format!("no embedded scene `{name}`")),
     };
     let result = loaded
-        .and_then(|s| s.with_overrides(&overrides).map_err(|e| e.to_string()))
+        .and_then(|s| {
+            s.with_overrides(&scene_overrides(&s, opts, variant))
+                .map_err(|e| e.to_string())
+        })
         .and_then(|scene| {
             let ropts = RunOptions {
                 steps: opts.steps,
@@ -361,4 +380,39 @@ pub fn write_outputs(
 /// The worst case over the suite, one line each (for the terminal).
 pub fn worst_case(rows: &[SuiteRow]) -> Vec<String> {
     worst_lines(rows)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `needle suite --nodes N` resizes generated box gels and leaves gels from mesh files
+    /// alone; the other overrides and the controller's come after it.
+    #[test]
+    fn nodes_resize_box_gels_only() {
+        let opts = SuiteOptions {
+            dir: PathBuf::from("scenes/suite"),
+            benchmarks: true,
+            overrides: vec![("solver.near_radius".into(), "\"off\"".into())],
+            nodes: Some(5000),
+            steps: None,
+            variants: Vec::new(),
+        };
+        let paper = Variant::named("paper").unwrap();
+        let boxed = Scene::builtin("complex").unwrap();
+        let o = scene_overrides(&boxed, &opts, &paper);
+        assert_eq!(o[0], ("gel.box.nodes".to_owned(), "5000".to_owned()));
+        assert_eq!(o[1].0, "solver.near_radius");
+        assert_eq!(&o[2..], &paper.overrides[..]);
+        let resized = boxed.with_overrides(&o).unwrap();
+        assert_eq!(resized.gel.box_mesh.unwrap().nodes, 5000);
+        let from_file = Scene::load(Path::new(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../scenes/suite/gmsh_box.toml"
+        )))
+        .unwrap();
+        let o = scene_overrides(&from_file, &opts, &paper);
+        assert!(o.iter().all(|(k, _)| k != "gel.box.nodes"), "{o:?}");
+        assert!(from_file.with_overrides(&o).is_ok());
+    }
 }
