@@ -441,12 +441,6 @@ impl<const M: usize, const N: usize> Controller<M, N> {
     ///   tolerance;
     /// - no obstacle clearance ends below `min(clearance_margin, its value before the step)`.
     ///
-    /// While a clearance is below the margin, a step that raises it by at least
-    /// [`SUFFICIENT_DECREASE`] of what the linear model promised for it passes without the tip's
-    /// decrease: the obstacle comes first. Without this rule a needle pushed inside the margin
-    /// (by the gel settling after a sudden release, say) had every step that moved it away
-    /// rejected for taking the tip farther, and its joints held there.
-    ///
     /// The candidates, in order: the planned step (tip and angles), the first stage's step `Δq₁`
     /// (the tip alone), then `Δq₁` halved, up to [`MAX_BACKTRACKS`] times; when none passes, the
     /// joints are held (the base solve is the answer). A step that comes at the joints the last
@@ -535,8 +529,7 @@ impl<const M: usize, const N: usize> Controller<M, N> {
 
     /// One candidate `Δq` of [`Self::accept_step`]: the final solve at `q + Δq`, kept (the joints
     /// and the solve's report) when it confirms the step: a sufficient decrease of the tip's
-    /// error against the linear model's promise, or of a clearance's shortfall below the margin,
-    /// and no clearance below `min(margin, before)`.
+    /// error against the linear model's promise and no clearance below `min(margin, before)`.
     fn confirm(
         &mut self,
         frame: &ComplianceFrame<M, N>,
@@ -556,18 +549,11 @@ impl<const M: usize, const N: usize> Controller<M, N> {
         let e_after = tip_sq(&report.objective_after);
         let decrease = e_after <= e0 - SUFFICIENT_DECREASE * (e0 - e_pred).max(0.0)
             || e_after <= self.params.tolerance;
-        let margin = self.params.clearance_margin;
-        let mut recovers = false;
         let clear_ok = (0..clear.count).all(|k| {
-            let (before, after) = (clear.value[k], frame.clearance(k, &self.lambda.work));
-            if before < margin {
-                // Back towards the margin: a sufficient part of the increase the model promised.
-                let promised = (0..N).map(|i| clear.gradient[k][i] * dq[i]).sum::<f64>();
-                recovers |= promised > 0.0 && after - before >= SUFFICIENT_DECREASE * promised;
-            }
-            after >= margin.min(before)
+            let after = frame.clearance(k, &self.lambda.work);
+            after >= self.params.clearance_margin.min(clear.value[k])
         });
-        ((decrease || recovers) && clear_ok).then_some((q_try, rep))
+        (decrease && clear_ok).then_some((q_try, rep))
     }
 
     /// Stage 5: the solve at the commanded joints (started from the prediction) → the `λ` the
