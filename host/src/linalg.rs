@@ -21,6 +21,7 @@ use faer::sparse::{SparseColMatRef, SymbolicSparseColMatRef};
 use faer::{Conj, MatMut, Par, Side, Spec};
 use std::fmt;
 
+mod sparse_rhs;
 mod trailing;
 pub use trailing::TrailingBlock;
 
@@ -216,6 +217,8 @@ pub struct Cholesky {
     factor_mem: MemBuffer,
     solve_mem: MemBuffer,
     solve_cols: usize,
+    /// Scratch of the `f64` solves ([`sparse_rhs::solve_in_place`]).
+    solve_scratch: sparse_rhs::Scratch<f64>,
     factorized: bool,
     /// Which numeric factorisation this is: a fresh value of [`FACTOR_STAMPS`] each time
     /// (0 before the first). Survives swaps of whole factors between buffers.
@@ -230,6 +233,7 @@ struct SingleFactor {
     l: Vec<f32>,
     a: Vec<f32>,
     rhs: Vec<f32>,
+    solve_scratch: sparse_rhs::Scratch<f32>,
     probe_x: Vec<f64>,
     probe_b: Vec<f64>,
 }
@@ -315,6 +319,7 @@ impl Cholesky {
                     l: vec![0.0; symbolic.len_val()],
                     a: vec![0.0; pattern.nnz()],
                     rhs: vec![0.0; n * max_rhs.max(1)],
+                    solve_scratch: sparse_rhs::Scratch::new(),
                     probe_x: probe_vector(n),
                     probe_b: vec![0.0; n],
                 }),
@@ -335,6 +340,7 @@ impl Cholesky {
             factor_mem,
             solve_mem,
             solve_cols,
+            solve_scratch: sparse_rhs::Scratch::new(),
             factorized: false,
             stamp: 0,
             fallbacks: 0,
@@ -523,10 +529,14 @@ impl Cholesky {
         }
         match self.single.as_mut() {
             None => {
-                let llt = LltRef::<'_, usize, f64>::new(&self.symbolic, &self.l_values);
-                let mat = MatMut::from_column_major_slice_mut(rhs, n, ncols);
                 let stack = MemStack::new(&mut self.solve_mem);
-                llt.solve_in_place_with_conj(Conj::No, mat, Par::Seq, stack);
+                let (sym, l) = (&self.symbolic, &self.l_values);
+                let scratch = &mut self.solve_scratch;
+                if sparse_rhs::solve_in_place(sym, l, rhs, ncols, scratch, stack).is_none() {
+                    let llt = LltRef::<'_, usize, f64>::new(sym, l);
+                    let mat = MatMut::from_column_major_slice_mut(rhs, n, ncols);
+                    llt.solve_in_place_with_conj(Conj::No, mat, Par::Seq, stack);
+                }
             }
             Some(sf) => sf.solve_in_place(&self.symbolic, rhs, ncols, &mut self.solve_mem),
         }
@@ -552,9 +562,13 @@ impl SingleFactor {
         for (d, &v) in buf.iter_mut().zip(rhs.iter()) {
             *d = v as f32;
         }
-        let llt = LltRef::<'_, usize, f32>::new(symbolic, &self.l);
-        let mat = MatMut::from_column_major_slice_mut(buf, n, ncols);
-        llt.solve_in_place_with_conj(Conj::No, mat, Par::Seq, MemStack::new(mem));
+        let stack = MemStack::new(mem);
+        let scratch = &mut self.solve_scratch;
+        if sparse_rhs::solve_in_place(symbolic, &self.l, buf, ncols, scratch, stack).is_none() {
+            let llt = LltRef::<'_, usize, f32>::new(symbolic, &self.l);
+            let mat = MatMut::from_column_major_slice_mut(buf, n, ncols);
+            llt.solve_in_place_with_conj(Conj::No, mat, Par::Seq, stack);
+        }
         for (d, &v) in rhs.iter_mut().zip(buf.iter()) {
             *d = f64::from(v);
         }
