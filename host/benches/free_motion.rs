@@ -7,7 +7,9 @@
 //! - `factor_gel_<n>_nodes`: the numeric sparse Cholesky factorisation (symbolic done once),
 //!   `f64`; `…_f32`: the single-precision factor, with the probe solve that checks it;
 //! - `solve_gel_<n>_nodes`: one solve with the current factor (and `…_30_rhs`: 30 at once;
-//!   `…_f32`: with the single-precision factor);
+//!   `…_f32`: with the single-precision factor); `…_f32_10_points`: the compliance columns of
+//!   10 points on the insertion's line (30 right-hand sides, each a node's unit column: the
+//!   forward substitution skips the supernodes they do not reach), against `…_f32_30_dense_rhs`;
 //! - `factor_near_block_<n>_nodes_f32`: the refactorisation of the single-precision factor's
 //!   near block alone (the nodes within 10 mm of the box's vertical centre line eliminated last;
 //!   `solver.near_radius`);
@@ -49,6 +51,28 @@ fn gel_with(target: usize, ordering: FillOrdering, precision: Precision) -> GelM
     model.apply_displacement(&dx).expect("finite displacement");
     model.refactor().expect("SPD");
     model
+}
+
+/// 30 column-major right-hand sides over `model`'s dofs: the 3 unit columns of each of the 10
+/// nodes nearest to the box's vertical centre line at depths 5, 10, …, 50 mm; and 30 dense
+/// seeded columns.
+fn point_and_dense_columns(model: &GelModel, rng: &mut common::Lcg) -> (Vec<f64>, Vec<f64>) {
+    let n = model.dof_count();
+    let pos = model.positions();
+    let mut points = vec![0.0; 30 * n];
+    for k in 0..10 {
+        let z = 55.0 - 5.0 * k as f64;
+        let d2 =
+            |p: &nalgebra::Vector3<f64>| (p.x - 300.0).powi(2) + p.y.powi(2) + (p.z - z).powi(2);
+        let node = (0..pos.len())
+            .min_by(|&a, &b| d2(&pos[a]).total_cmp(&d2(&pos[b])))
+            .expect("nodes");
+        for d in 0..3 {
+            points[(3 * k + d) * n + 3 * node + d] = 1.0;
+        }
+    }
+    let dense = (0..30 * n).map(|_| rng.next()).collect();
+    (points, dense)
 }
 
 fn bench_gel(c: &mut Criterion) {
@@ -93,6 +117,23 @@ fn bench_gel(c: &mut Criterion) {
                 single.solve(black_box(&mut x)).expect("factorised");
             })
         });
+        if target >= 1800 {
+            // Compliance columns: 10 points along the insertion's line, each its node's 3 unit
+            // columns (the forward substitution reaches only their supernodes' paths), against
+            // 30 dense right-hand sides (every supernode).
+            let (points, dense) = point_and_dense_columns(&single, &mut rng);
+            for (name, cols) in [("10_points", &points), ("30_dense_rhs", &dense)] {
+                let mut xm = cols.clone();
+                group.bench_function(format!("solve_gel_{target}_nodes_f32_{name}"), |b| {
+                    b.iter(|| {
+                        xm.copy_from_slice(cols);
+                        single
+                            .solve_columns(black_box(&mut xm), 30)
+                            .expect("factorised");
+                    })
+                });
+            }
+        }
         drop(single);
         if target <= 1800 {
             // Compliance needs one column per constraint row: 30 right-hand sides at once.
