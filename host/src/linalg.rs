@@ -774,11 +774,40 @@ pub fn nested_dissection_order_with_last(
     coords: &[[f64; 3]],
     last: &[bool],
 ) -> Vec<usize> {
+    nested_dissection_order_with_last_two(pattern, coords, last, &[])
+}
+
+/// [`nested_dissection_order_with_last`] with a second set `inner` (a subset of `last`)
+/// eliminated after the rest of `last`: the unmarked rows, then the rows of `last` not in
+/// `inner`, then `inner`, each in its nested-dissection order. Both the block of `last` and the
+/// block of `inner` are then trailing blocks of the factor ([`TrailingBlock`]); rows of `inner`
+/// not in `last` count as in `last`.
+pub fn nested_dissection_order_with_last_two(
+    pattern: &SymmetricPattern,
+    coords: &[[f64; 3]],
+    last: &[bool],
+    inner: &[bool],
+) -> Vec<usize> {
     let adj = adjacency(pattern);
     let n = pattern.dim();
-    let marked = |i: &usize| last.get(*i).copied().unwrap_or(false);
-    let mut order = dissect(&adj, coords, (0..n).filter(|i| !marked(i)).collect());
-    order.extend(dissect(&adj, coords, (0..n).filter(marked).collect()));
+    let flag = |set: &[bool], i: usize| set.get(i).copied().unwrap_or(false);
+    let group = |i: &usize| {
+        if flag(inner, *i) {
+            2
+        } else if flag(last, *i) {
+            1
+        } else {
+            0
+        }
+    };
+    let mut order = Vec::with_capacity(n);
+    for g in 0..3 {
+        order.extend(dissect(
+            &adj,
+            coords,
+            (0..n).filter(|i| group(i) == g).collect(),
+        ));
+    }
     order
 }
 

@@ -17,7 +17,10 @@ use crate::free_motion::{
 use crate::joints::{WithJoints, with_joints};
 use crate::linalg::Precision;
 use crate::mesh::{TetMesh, box_mesh, read_mesh};
-use crate::scene::{FactorPrecisionSpec, GelSolveSpec, InsertionMode, SampledPath, Scene};
+use crate::scene::{
+    ENTRY_AUTO_FACTOR, FactorPrecisionSpec, GelSolveSpec, InsertionMode, NearRadiusSpec,
+    SampledPath, Scene,
+};
 use crate::step::{Insertion, Interaction, StepParams, TargetMotion};
 use crate::support_motion::SupportMotion;
 use crate::world::{ObstacleShape, World, WorldParts, node_frame_offset};
@@ -139,8 +142,10 @@ impl<const N: usize> Setup<N> {
             t0.elapsed().as_secs_f64()
         );
         let fixed = fixed_nodes(scene, &mesh)?;
+        let (near, entry) = near_and_entry_nodes(scene, &mesh, &path);
         let params = GelParams {
-            near_nodes: near_nodes(scene, &mesh, &path),
+            near_nodes: near,
+            entry_nodes: entry,
             ..gel_params(scene)
         };
         let gel = GelModel::try_new(mesh, &fixed, &params).map_err(|source| SetupError::Model {
@@ -303,7 +308,46 @@ pub fn gel_params(scene: &Scene) -> GelParams {
             FactorPrecisionSpec::Double => Precision::Double,
         },
         near_nodes: None,
+        entry_nodes: None,
     }
+}
+
+/// The near block's nodes ([`near_nodes`]) with the entry block's added, and the entry block's
+/// nodes: those within `solver.entry_radius` of the path's entry point (`"auto"`:
+/// [`ENTRY_AUTO_FACTOR`] times the near radius). `(None, None)` without a near
+/// block; `(near, None)` without an entry block.
+pub fn near_and_entry_nodes(
+    scene: &Scene,
+    mesh: &TetMesh,
+    path: &SampledPath,
+) -> (Option<Vec<bool>>, Option<Vec<bool>>) {
+    let Some(mut near) = near_nodes(scene, mesh, path) else {
+        return (None, None);
+    };
+    let near_radius = scene
+        .solver
+        .near_radius
+        .radius(mesh.node_count(), mesh.total_volume());
+    let radius = match scene.solver.entry_radius {
+        NearRadiusSpec::Auto => near_radius.map(|r| ENTRY_AUTO_FACTOR * r),
+        NearRadiusSpec::Off => None,
+        NearRadiusSpec::Radius(r) => Some(r),
+    };
+    let Some(radius) = radius else {
+        return (Some(near), None);
+    };
+    tracing::debug!(
+        radius,
+        "the gel's entry block: nodes within {radius:.1} mm of the entry point"
+    );
+    let entry_point = path.entry();
+    let entry: Vec<bool> = (mesh.nodes.iter())
+        .map(|p| (p - entry_point).norm() <= radius)
+        .collect();
+    for (n, e) in near.iter_mut().zip(&entry) {
+        *n |= *e;
+    }
+    (Some(near), Some(entry))
 }
 
 /// The gel's nodes within `solver.near_radius` (as [`crate::scene::NearRadiusSpec::radius`] resolves it for
@@ -625,5 +669,51 @@ mod tests {
         )
         .expect("scene");
         assert_eq!(step_params(&s), StepParams::default());
+    }
+
+    /// The entry block: the nodes within `solver.entry_radius` of the entry point, added to the
+    /// near block; `"auto"` is 1.5 near radii; none without a near block.
+    #[test]
+    fn entry_nodes_are_a_ball_at_the_entry_point_inside_the_near_block() {
+        let text = "name = \"d\"\n[gel.box]\nmin = [260.0, -30.0, 0.0]\nmax = [340.0, 30.0, 60.0]\nnodes = 5000\n\
+                    [path]\npoints = [[300.0, 0.0, 60.0], [300.0, 0.0, 20.0]]\n";
+        let scene = Scene::from_toml_str(text, "d.toml").expect("scene");
+        let mesh = gel_mesh(&scene).expect("mesh");
+        let path = scene.sampled_path().expect("path");
+        let radius = (scene.solver.near_radius)
+            .radius(mesh.node_count(), mesh.total_volume())
+            .expect("a near block at 5000 nodes");
+        let (near, entry) = near_and_entry_nodes(&scene, &mesh, &path);
+        let (near, entry) = (near.expect("near"), entry.expect("entry"));
+        let plain = near_nodes(&scene, &mesh, &path).expect("near");
+        let entry_point = Vector3::new(300.0, 0.0, 60.0);
+        let mut added = 0;
+        for (i, p) in mesh.nodes.iter().enumerate() {
+            let d = (p - entry_point).norm();
+            assert_eq!(entry[i], d <= 1.5 * radius, "node {i} at {d} mm");
+            assert_eq!(near[i], plain[i] || entry[i], "node {i}");
+            added += usize::from(entry[i] && !plain[i]);
+        }
+        assert!(entry.iter().filter(|e| **e).count() > 10);
+        assert!(added > 0, "the ball reaches beyond the path's radius");
+        let off = Scene {
+            solver: crate::scene::SolverSpec {
+                entry_radius: NearRadiusSpec::Off,
+                ..scene.solver.clone()
+            },
+            ..scene.clone()
+        };
+        assert_eq!(
+            near_and_entry_nodes(&off, &mesh, &path),
+            (Some(plain), None)
+        );
+        let no_near = Scene {
+            solver: crate::scene::SolverSpec {
+                near_radius: NearRadiusSpec::Off,
+                ..scene.solver.clone()
+            },
+            ..scene
+        };
+        assert_eq!(near_and_entry_nodes(&no_near, &mesh, &path), (None, None));
     }
 }

@@ -6,7 +6,7 @@
 use nalgebra::Vector3;
 use needle_host::linalg::{
     Cholesky, LinalgError, Precision, SymmetricMatrix, SymmetricPattern, TrailingBlock,
-    nested_dissection_order_with_last,
+    nested_dissection_order_with_last, nested_dissection_order_with_last_two,
 };
 use needle_host::mesh::box_mesh;
 
@@ -195,6 +195,135 @@ fn trailing_refactorisation_solves_as_the_full_factor_in_single() {
     check(Precision::Single, 1e-5);
 }
 
+/// Two nested trailing blocks (the near rows, and the top of them, `z ≥ 15`, eliminated last of
+/// all): the near block refactorised for a matrix changed among near rows, the inner block
+/// captured from that factor and refactorised for a matrix changed among its own rows, then the
+/// near block again from its carried capture; each factor solves as a fresh factorisation of its
+/// matrix.
+fn check_nested(precision: Precision, tolerance: f64) {
+    let p = problem();
+    let n = p.pattern.dim();
+    let inner: Vec<bool> = (0..n)
+        .map(|i| p.near[i] && p.coords[i][2] >= 15.0)
+        .collect();
+    let (n_near, n_inner) = (
+        p.near.iter().filter(|x| **x).count(),
+        inner.iter().filter(|x| **x).count(),
+    );
+    assert!(
+        n_inner > 20 && n_inner < n_near,
+        "{n_inner} inner rows of {n_near}"
+    );
+    let order = nested_dissection_order_with_last_two(&p.pattern, &p.coords, &p.near, &inner);
+    assert!(order[n - n_inner..].iter().all(|&i| inner[i]));
+    assert!(
+        order[n - n_near..n - n_inner]
+            .iter()
+            .all(|&i| p.near[i] && !inner[i])
+    );
+    let mut rng = Lcg(11);
+    let w0: Vec<f64> = (0..p.edges.len()).map(|_| 0.5 + rng.next()).collect();
+    let index = |i: usize, j: usize| p.edges.binary_search(&(i, j)).expect("an edge");
+    // The edges among the rows of `set` scaled by `scale`, the others as in w0.
+    let changed = |set: &[bool], scale: &[f64], shift: f64| {
+        matrix(
+            &p,
+            |i, j| {
+                let k = index(i, j);
+                if set[i] && set[j] {
+                    w0[k] * scale[k]
+                } else {
+                    w0[k]
+                }
+            },
+            |i| if set[i] { shift } else { 0.1 },
+        )
+    };
+    let mut scale = || {
+        (0..p.edges.len())
+            .map(|_| 0.5 + 1.5 * rng.next())
+            .collect::<Vec<_>>()
+    };
+    let (s1, s2, s3) = (scale(), scale(), scale());
+    let a0 = changed(&p.near, &vec![1.0; p.edges.len()], 0.1);
+    let a1 = changed(&p.near, &s1, 0.3);
+    // a2: a1 changed again among the inner rows alone.
+    let mut a2 = a1.clone();
+    let a1_inner = changed(&inner, &s1, 0.3);
+    let a2_inner = changed(&inner, &s2, 0.2);
+    for (v, (x, y)) in a2
+        .values
+        .iter_mut()
+        .zip(a2_inner.values.iter().zip(&a1_inner.values))
+    {
+        *v += x - y;
+    }
+    let a3 = changed(&p.near, &s3, 0.25);
+    let b: Vec<f64> = (0..n).map(|_| rng.next() - 0.5).collect();
+    let fresh = |a: &SymmetricMatrix| {
+        let mut f = Cholesky::try_new_with_precision(&p.pattern, Some(&order), 1, precision)
+            .expect("symbolic");
+        f.factorize(a).expect("SPD");
+        let mut x = b.clone();
+        f.solve_in_place(&mut x).expect("factorised");
+        x
+    };
+    let solve = |chol: &mut Cholesky| {
+        let mut x = b.clone();
+        chol.solve_in_place(&mut x).expect("factorised");
+        x
+    };
+
+    let mut chol =
+        Cholesky::try_new_with_precision(&p.pattern, Some(&order), 1, precision).expect("symbolic");
+    chol.factorize(&a0).expect("SPD");
+    let mut near = TrailingBlock::new(&chol, &p.pattern, n - n_near).expect("supernodal");
+    let mut top = TrailingBlock::new(&chol, &p.pattern, n - n_inner).expect("supernodal");
+    near.capture(&chol, &a0).expect("captured");
+    top.capture(&chol, &a0).expect("captured");
+    near.refactor(&mut chol, &a1).expect("SPD block");
+    assert_eq!(
+        top.refactor(&mut chol, &a2),
+        Err(LinalgError::NotFactorized),
+        "the inner capture is of the factor before the near refresh"
+    );
+    top.capture(&chol, &a1).expect("captured");
+    let before = chol.stamp();
+    top.refactor(&mut chol, &a2).expect("SPD block");
+    let d = relative_difference(&solve(&mut chol), &fresh(&a2));
+    assert!(d < tolerance, "{precision:?}: inner refresh {d:e}");
+    assert_eq!(
+        near.refactor(&mut chol, &a3),
+        Err(LinalgError::NotFactorized),
+        "not carried yet"
+    );
+    near.carry_capture(before + 1_000_000, &chol);
+    assert_ne!(
+        near.captured(),
+        chol.stamp(),
+        "another factor's stamp carries nothing"
+    );
+    near.carry_capture(before, &chol);
+    assert_eq!(near.captured(), chol.stamp());
+    near.refactor(&mut chol, &a3).expect("SPD block");
+    let d = relative_difference(&solve(&mut chol), &fresh(&a3));
+    assert!(
+        d < tolerance,
+        "{precision:?}: near refresh after the inner one {d:e}"
+    );
+    assert!(relative_difference(&fresh(&a2), &fresh(&a3)) > 100.0 * tolerance);
+}
+
+#[test]
+fn nested_trailing_blocks_solve_as_full_factors_in_double() {
+    check_nested(Precision::Double, 1e-13);
+}
+
+#[test]
+fn nested_trailing_blocks_solve_as_full_factors_in_single() {
+    check_nested(Precision::Single, 1e-5);
+}
+
 #[test]
 fn trailing_order_puts_the_marked_rows_last_and_keeps_the_plain_order_otherwise() {
     let p = problem();
@@ -224,8 +353,63 @@ fn trailing_order_puts_the_marked_rows_last_and_keeps_the_plain_order_otherwise(
 /// matrix with `b ≠ j` is used.
 #[test]
 fn near_block_steps_solve_with_a_far_matrix_and_a_later_near_block() {
+    let (mesh, _, near) = box_with_near_column();
+    let load = |k: usize| if k < 14 { 4e-3 } else { -4e-3 };
+    let (near_steps, entry_steps) = check_block_steps(&near, &near, None, load);
+    assert!(entry_steps.is_empty());
+    assert!(near_steps.len() >= 2);
+}
+
+/// As [`near_block_steps_solve_with_a_far_matrix_and_a_later_near_block`] with an entry block
+/// (`GelParams::entry_nodes`: the nodes within 7.5 mm of the column's top centre, added to the
+/// near block): every step's free motion is the solve with some step `j`'s matrix whose near
+/// elements are turned to a later near refresh's rotations and whose entry elements to a still
+/// later entry refresh's; the entry block is refactorised on its own, and the near block less
+/// often than without it.
+#[test]
+fn entry_block_steps_solve_with_a_far_matrix_a_near_block_and_a_later_entry_block() {
+    let (mesh, _, near) = box_with_near_column();
+    let centre = Vector3::new(20.0, 10.0, 20.0);
+    let entry: Vec<bool> = (mesh.nodes.iter())
+        .map(|p| (p - centre).norm() <= 7.5)
+        .collect();
+    // A load on the top nodes within 3 mm of the column's centre: the gel turns most below it.
+    let loaded: Vec<bool> = (mesh.nodes.iter())
+        .map(|p| (p - centre).norm() <= 3.0)
+        .collect();
+    let load = |k: usize| 4e-3 * (1 + k.min(27 - k)) as f64;
+    let (near_alone, _) = check_block_steps(&near, &loaded, None, load);
+    let (near_steps, entry_steps) = check_block_steps(&near, &loaded, Some(entry), load);
+    println!("near refreshes without an entry block at {near_alone:?}");
+    assert!(
+        entry_steps.len() >= 2,
+        "entry refreshes at {entry_steps:?}: the test is void"
+    );
+    assert!(
+        near_steps.len() < near_alone.len(),
+        "near refreshes {near_steps:?} with the entry block, {near_alone:?} without"
+    );
+}
+
+/// Runs the box with the near block `near` and the entry block `entry` (added to `near`), its
+/// top nodes marked in `loaded` pushed sideways by `load(step)` per node, and checks every
+/// step's free motion against the solves with the matrices the refresh rule allows (see the
+/// tests above). Returns the steps that refreshed the near block and the entry block.
+fn check_block_steps(
+    near: &[bool],
+    loaded: &[bool],
+    entry: Option<Vec<bool>>,
+    load: impl Fn(usize) -> f64,
+) -> (Vec<usize>, Vec<usize>) {
     use needle_host::free_motion::{GelModel, GelParams, RefreshParams};
-    let (mesh, bottom, near) = box_with_near_column();
+    let (mesh, bottom, _) = box_with_near_column();
+    let mut near = near.to_vec();
+    if let Some(e) = &entry {
+        for (n, x) in near.iter_mut().zip(e) {
+            *n |= *x;
+        }
+    }
+    let in_entry = |v: usize| entry.as_ref().is_some_and(|e| e[v]);
     let plain = GelParams {
         time_step: Some(0.05),
         density: 1e-8,
@@ -240,6 +424,7 @@ fn near_block_steps_solve_with_a_far_matrix_and_a_later_near_block() {
             ceiling: usize::MAX,
         }),
         near_nodes: Some(near.clone()),
+        entry_nodes: entry.clone(),
         ..plain.clone()
     };
     let mut model = GelModel::try_new(mesh.clone(), &bottom, &params).unwrap();
@@ -248,14 +433,13 @@ fn near_block_steps_solve_with_a_far_matrix_and_a_later_near_block() {
         "a supernodal factor keeps the block"
     );
     let mut by_hand = GelModel::try_new(mesh.clone(), &bottom, &plain).unwrap();
-    // A load on the near column's top nodes, sideways then back: the column bends.
+    // The load on the marked top nodes, sideways then back.
     let top = mesh.nodes_on_plane(2, 20.0, 1e-9);
-    let load = |k: usize| {
+    let forces = |k: usize| {
         let mut f = vec![0.0; model_dofs(&mesh)];
-        let fx = if k < 14 { 4e-3 } else { -4e-3 };
         for &i in &top {
-            if near[i] {
-                f[3 * i] = fx;
+            if loaded[i] {
+                f[3 * i] = load(k);
             }
         }
         f
@@ -268,13 +452,16 @@ fn near_block_steps_solve_with_a_far_matrix_and_a_later_near_block() {
     let near_elements: Vec<usize> = (0..mesh.tets.len())
         .filter(|&e| mesh.tets[e].iter().all(|&v| near[v]))
         .collect();
+    let is_entry = |e: usize| mesh.tets[e].iter().all(|&v| in_entry(v));
     let reduced: std::collections::HashMap<usize, usize> =
         free.iter().enumerate().map(|(k, &g)| (g, k)).collect();
     let mut block_steps: Vec<usize> = Vec::new();
-    let mut factors: std::collections::HashMap<(usize, usize), Cholesky> = Default::default();
-    let (mut mixed_used, mut last_near) = (0, 0);
+    let mut entry_steps: Vec<usize> = Vec::new();
+    let mut factors: std::collections::HashMap<(usize, usize, usize), Cholesky> =
+        Default::default();
+    let (mut mixed_used, mut last_near, mut last_entry) = (0, 0, 0);
     for k in 0..28 {
-        let f = load(k);
+        let f = forces(k);
         let x = model.positions().to_vec();
         by_hand.positions_mut().copy_from_slice(&x);
         by_hand.refactor().unwrap();
@@ -286,14 +473,24 @@ fn near_block_steps_solve_with_a_far_matrix_and_a_later_near_block() {
             last_near = model.near_refactorizations();
             block_steps.push(k);
         }
+        if model.entry_refactorizations() > last_entry {
+            last_entry = model.entry_refactorizations();
+            entry_steps.push(k);
+        }
         let f_int = by_hand.compute_internal_forces().to_vec();
         let rhs: Vec<f64> = free.iter().map(|&g| f[g] - f_int[g]).collect();
         let got: Vec<f64> = free.iter().map(|&g| dx[g]).collect();
         let mut found = None;
         'search: for j in (0..=k).rev() {
             let blocks = std::iter::once(j).chain(block_steps.iter().copied().filter(|&b| b > j));
-            for b in blocks {
-                let chol = factors.entry((j, b)).or_insert_with(|| {
+            for (b, c) in blocks.flat_map(|b| {
+                std::iter::once((b, b)).chain(
+                    (entry_steps.iter().copied())
+                        .filter(move |&c| c > b)
+                        .map(move |c| (b, c)),
+                )
+            }) {
+                let chol = factors.entry((j, b, c)).or_insert_with(|| {
                     let mut m = matrices[j].clone();
                     let pattern = m.pattern().clone();
                     let tetra = by_hand.tetra();
@@ -305,7 +502,8 @@ fn near_block_steps_solve_with_a_far_matrix_and_a_later_near_block() {
                             *s = k as u32;
                         }
                         let mut change = vec![0.0; n];
-                        tetra.assemble_element(e, &rotations[b][e], &slots, &mut change, 1.0);
+                        let to = if is_entry(e) { c } else { b };
+                        tetra.assemble_element(e, &rotations[to][e], &slots, &mut change, 1.0);
                         tetra.assemble_element(e, &rotations[j][e], &slots, &mut change, -1.0);
                         for (&(r, c), d) in dofs.iter().zip(&change) {
                             if let (Some(&r), Some(&c)) = (reduced.get(&r), reduced.get(&c)) {
@@ -321,25 +519,25 @@ fn near_block_steps_solve_with_a_far_matrix_and_a_later_near_block() {
                 let mut want = rhs.clone();
                 chol.solve_in_place(&mut want).unwrap();
                 if relative_difference(&got, &want) < 1e-9 {
-                    found = Some((j, b));
+                    found = Some((j, b, c));
                     break 'search;
                 }
             }
         }
-        let (j, b) =
-            found.unwrap_or_else(|| panic!("step {k}: no far and near matrix pair solves it"));
-        mixed_used += usize::from(b != j);
+        let (j, b, c) =
+            found.unwrap_or_else(|| panic!("step {k}: no far, near and entry matrices solve it"));
+        mixed_used += usize::from(b != j || c != j);
         model.apply_displacement(&dx).unwrap();
     }
-    println!("near refreshes at {block_steps:?}; {mixed_used} steps with a mixed matrix");
-    assert!(
-        block_steps.len() >= 2,
-        "near refreshes at {block_steps:?}: the test is void"
+    println!(
+        "near refreshes at {block_steps:?}, entry refreshes at {entry_steps:?}; \
+         {mixed_used} steps with a mixed matrix"
     );
     assert!(
         mixed_used >= 2,
         "{mixed_used} steps with a mixed matrix: the test is void"
     );
+    (block_steps, entry_steps)
 }
 
 /// The 637-node clamped box of the run-level tests, and its near column: the nodes within 5 mm

@@ -389,7 +389,10 @@ fn print_text(s: &RunSummary) {
     );
     if s.background_factorizations + s.immediate_factorizations > 0 {
         let near = if s.near_factorizations > 0 {
-            format!(", {} of the near block alone", s.near_factorizations)
+            format!(
+                ", {} of the near block alone, {} of its entry block alone",
+                s.near_factorizations, s.entry_factorizations
+            )
         } else {
             String::new()
         };

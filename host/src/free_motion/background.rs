@@ -211,18 +211,30 @@ pub(super) struct LagGuard {
     /// With a near block: the element rotations of the matrix of the last full factorisation
     /// in use (`in_use` but for the near block's refreshes); empty without a block.
     full: Vec<Matrix3<f64>>,
+    /// The near elements all of whose nodes are in the entry block (empty: none), measured
+    /// apart from the other near ones ([`LagGuard::entry_lag`]).
+    entry: Vec<bool>,
+    /// The indices of those elements.
+    entry_list: Vec<usize>,
 }
 
 impl LagGuard {
     /// A guard for `elements` elements at rest; `near` marks the elements of the near block
-    /// (empty: none).
-    pub fn new(elements: usize, near: Vec<bool>) -> Self {
+    /// (empty: none), `entry` those of the entry block inside it (empty: none; ignored
+    /// without `near`).
+    pub fn new(elements: usize, near: Vec<bool>, entry: Vec<bool>) -> Self {
         let near_list = (0..near.len()).filter(|&e| near[e]).collect();
         let full = if near.is_empty() {
             Vec::new()
         } else {
             vec![Matrix3::identity(); elements]
         };
+        let entry = if near.is_empty() || entry.len() != near.len() {
+            Vec::new()
+        } else {
+            entry
+        };
+        let entry_list: Vec<usize> = (0..entry.len()).filter(|&e| entry[e]).collect();
         Self {
             in_use: vec![Matrix3::identity(); elements],
             sent: vec![Matrix3::identity(); elements],
@@ -230,7 +242,49 @@ impl LagGuard {
             near,
             near_list,
             full,
+            entry,
+            entry_list,
         }
+    }
+
+    /// Whether element `e` is in the entry block.
+    fn is_entry(&self, e: usize) -> bool {
+        self.entry.get(e).copied().unwrap_or(false)
+    }
+
+    /// The entry block's elements and the rotations of the factor's matrix: an entry refresh
+    /// changes that matrix by those elements' turns since.
+    pub fn entry_elements_and_in_use(&self) -> (&[usize], &[Matrix3<f64>]) {
+        (&self.entry_list, &self.in_use)
+    }
+
+    /// The largest rotation of an entry-block element since the matrix of the factor in use
+    /// [rad] (0 without an entry block).
+    pub fn entry_lag(&self, rotations: &[Matrix3<f64>]) -> f64 {
+        if self.entry_list.is_empty() {
+            return 0.0;
+        }
+        largest_rotation_where(rotations, &self.in_use, |e| self.entry[e])
+    }
+
+    /// The entry block of the factor in use was refactorised for `rotations`.
+    pub fn record_entry(&mut self, rotations: &[Matrix3<f64>]) {
+        for &e in &self.entry_list {
+            self.in_use[e] = rotations[e];
+        }
+    }
+
+    /// The whole factor was made at once from the factor's matrix with the entry block's
+    /// elements turned to `rotations` (an entry refresh that fell back): that matrix is the new
+    /// full one.
+    pub fn record_entry_full(&mut self, rotations: &[Matrix3<f64>]) {
+        for &e in &self.entry_list {
+            self.in_use[e] = rotations[e];
+        }
+        for &e in &self.near_list {
+            self.full[e] = self.in_use[e];
+        }
+        self.lag = largest_rotation_where(rotations, &self.in_use, |e| !self.near[e]);
     }
 
     /// The near block's elements and the rotations of the last full factor's matrix: a near
@@ -253,13 +307,15 @@ impl LagGuard {
         self.lag
     }
 
-    /// The largest rotation of a near-block element since the matrix of the factor in use
-    /// [rad] (0 without a block).
+    /// The largest rotation of a near-block element outside the entry block since the matrix
+    /// of the factor in use [rad] (0 without a block).
     pub fn near_lag(&self, rotations: &[Matrix3<f64>]) -> f64 {
         if self.near.is_empty() {
             return 0.0;
         }
-        largest_rotation_where(rotations, &self.in_use, |e| self.near[e])
+        largest_rotation_where(rotations, &self.in_use, |e| {
+            self.near[e] && !self.is_entry(e)
+        })
     }
 
     /// The near block of the factor in use was refactorised for `rotations`.

@@ -174,9 +174,17 @@ struct ModelLayout<'a> {
     refine: Option<PcgParams>,
     refresh: Option<RefreshParams>,
     precision: Precision,
-    /// Global dofs of the near block and the elements all of whose nodes are near (see
-    /// [`GelParams::near_nodes`]); `None`: no block.
-    near: Option<(Vec<bool>, Vec<bool>)>,
+    /// The near block and its entry block (see [`GelParams::near_nodes`]); `None`: no block.
+    near: Option<NearLayout>,
+}
+
+/// Global dofs of the near block and the elements all of whose nodes are near, and the same
+/// for the entry block inside it (empty: none; see [`GelParams::entry_nodes`]).
+struct NearLayout {
+    dofs: Vec<bool>,
+    elements: Vec<bool>,
+    entry_dofs: Vec<bool>,
+    entry_elements: Vec<bool>,
 }
 
 impl<E: Elements> FeModel<E> {
@@ -209,15 +217,18 @@ impl<E: Elements> FeModel<E> {
             refine: layout.refine,
             refresh: layout.refresh,
             precision: layout.precision,
-            near_dofs: layout.near.as_ref().map(|(dofs, _)| dofs.as_slice()),
+            near_dofs: layout.near.as_ref().map(|n| n.dofs.as_slice()),
+            entry_dofs: (layout.near.as_ref())
+                .map(|n| n.entry_dofs.as_slice())
+                .filter(|d| !d.is_empty()),
         })?;
         // CG solves the current matrix: no rotation guard on the factor's age.
-        let near_elements = match layout.near {
-            Some((_, elements)) if sys.has_near() => elements,
-            _ => Vec::new(),
+        let (near_elements, entry_elements) = match layout.near {
+            Some(n) if sys.has_near() => (n.elements, n.entry_elements),
+            _ => (Vec::new(), Vec::new()),
         };
         let lag = (layout.background && layout.pcg.is_none())
-            .then(|| LagGuard::new(elements.rotations().len(), near_elements));
+            .then(|| LagGuard::new(elements.rotations().len(), near_elements, entry_elements));
         Ok(Self {
             elements,
             positions,
@@ -307,6 +318,12 @@ impl<E: Elements> FeModel<E> {
     /// Refactorisations of the near block so far ([`GelParams::near_nodes`]; 0 without one).
     pub fn near_refactorizations(&self) -> u64 {
         self.sys.near_refreshes()
+    }
+
+    /// Refactorisations of the entry block alone so far ([`GelParams::entry_nodes`]; 0 without
+    /// one).
+    pub fn entry_refactorizations(&self) -> u64 {
+        self.sys.entry_refreshes()
     }
 
     /// Whether the factor has a near block ([`GelParams::near_nodes`]): the option was given
@@ -444,13 +461,27 @@ impl<E: Elements> FeModel<E> {
             // The near block on its own, at once, when its elements rotated by the refresh's
             // angle since the factor's matrix.
             let rotations = self.elements.rotations();
-            if self.sys.has_near() && g.near_lag(rotations) >= self.sys.near_rotation() {
+            // The entry block alone when only its elements rotated so (and it is ready).
+            let angle = self.sys.near_rotation();
+            let entry_ready = self.sys.has_entry();
+            let near_turned = self.sys.has_near()
+                && (g.near_lag(rotations) >= angle
+                    || (!entry_ready && g.entry_lag(rotations) >= angle));
+            if near_turned {
                 let (list, full) = g.near_elements_and_full();
                 let change = |v: &mut [f64]| elements.add_rotation_change(slots, v, list, full);
                 match self.sys.refresh_near(change)? {
                     NearRefresh::None => {}
                     NearRefresh::Block => g.record_near(rotations),
                     NearRefresh::Full => g.record_near_full(rotations),
+                }
+            } else if entry_ready && g.entry_lag(rotations) >= angle {
+                let (list, base) = g.entry_elements_and_in_use();
+                let change = |v: &mut [f64]| elements.add_rotation_change(slots, v, list, base);
+                match self.sys.refresh_entry(change)? {
+                    NearRefresh::None => {}
+                    NearRefresh::Block => g.record_entry(rotations),
+                    NearRefresh::Full => g.record_entry_full(rotations),
                 }
             }
         }

@@ -6,7 +6,8 @@ use super::background::{Adopted, Background, FactorEvent, Job, LAG_ROTATION_LIMI
 use crate::fem::FemError;
 use crate::linalg::{
     Cholesky, PcgOutcome, PcgWork, Precision, SymmetricMatrix, SymmetricPattern, TrailingBlock,
-    nested_dissection_order, nested_dissection_order_with_last, pcg_solve, pcg_solve_from,
+    nested_dissection_order, nested_dissection_order_with_last,
+    nested_dissection_order_with_last_two, pcg_solve, pcg_solve_from,
 };
 
 /// Marks a fixed (eliminated) dof in the global → reduced map.
@@ -64,8 +65,21 @@ pub(super) enum NearRefresh {
 #[derive(Debug)]
 struct NearBlock {
     block: TrailingBlock,
+    /// The matrix of the factor in use (the last full factorisation's, changed by the last
+    /// near refresh and the entry refreshes since).
     matrix: SymmetricMatrix,
     /// Refactorisations of the block so far.
+    refreshes: u64,
+    /// The entry block inside it, eliminated last of all (`None`: none).
+    entry: Option<EntryBlock>,
+}
+
+/// The entry block: the trailing part of the near block, around the path's entry point,
+/// refactorised on its own ([`ReducedSystem::refresh_entry`]).
+#[derive(Debug)]
+struct EntryBlock {
+    block: TrailingBlock,
+    /// Refactorisations of the entry block so far.
     refreshes: u64,
 }
 
@@ -137,6 +151,9 @@ pub(super) struct SystemLayout<'a, I: Iterator<Item = (usize, usize)>, F: Fn() -
     /// Global dofs eliminated last, whose block of the factor is refactorised on its own
     /// ([`ReducedSystem::refresh_near`]); needs `dof_coords` and the direct solve.
     pub near_dofs: Option<&'a [bool]>,
+    /// Global dofs among `near_dofs` eliminated last of all, whose block is refactorised on
+    /// its own again ([`ReducedSystem::refresh_entry`]); ignored without `near_dofs`.
+    pub entry_dofs: Option<&'a [bool]>,
 }
 
 impl ReducedSystem {
@@ -186,9 +203,19 @@ impl ReducedSystem {
                     .map(|&g| m.get(g).copied().unwrap_or(false))
                     .collect()
             });
+        // The entry dofs: near ones eliminated last of all (empty: none).
+        let entry_free: Vec<bool> = match (&near_free, layout.entry_dofs) {
+            (Some(near), Some(m)) => (free.iter().zip(near))
+                .map(|(&g, &n)| n && m.get(g).copied().unwrap_or(false))
+                .collect(),
+            _ => Vec::new(),
+        };
         let order = layout.dof_coords.map(|c| {
             let reduced: Vec<[f64; 3]> = free.iter().map(|&g| c[g]).collect();
             match &near_free {
+                Some(last) if entry_free.contains(&true) => {
+                    nested_dissection_order_with_last_two(&pattern, &reduced, last, &entry_free)
+                }
                 Some(last) => nested_dissection_order_with_last(&pattern, &reduced, last),
                 None => nested_dissection_order(&pattern, &reduced),
             }
@@ -198,6 +225,7 @@ impl ReducedSystem {
         let near_count = near_free
             .as_ref()
             .map_or(0, |m| m.iter().filter(|x| **x).count());
+        let entry_count = entry_free.iter().filter(|x| **x).count();
         // A factor too small for supernodes (or no near dof, or no ordering) keeps no block.
         let near = (order.is_some() && near_count > 0)
             .then(|| TrailingBlock::new(&chol, &pattern, free.len() - near_count).ok())
@@ -206,6 +234,13 @@ impl ReducedSystem {
                 block,
                 matrix: SymmetricMatrix::zeros(pattern.clone()),
                 refreshes: 0,
+                entry: (entry_count > 0 && entry_count < near_count)
+                    .then(|| TrailingBlock::new(&chol, &pattern, free.len() - entry_count).ok())
+                    .flatten()
+                    .map(|block| EntryBlock {
+                        block,
+                        refreshes: 0,
+                    }),
             });
         let background = if layout.background {
             Some(Background::start(
@@ -720,11 +755,90 @@ impl ReducedSystem {
     /// After a full factorisation of `matrix` (at once or adopted): the near block's far
     /// contribution from it. A block that cannot be captured is dropped (full refreshes only).
     fn capture_near(&mut self) {
-        if let Some(near) = self.near.as_mut()
-            && near.block.capture(&self.chol, &self.matrix).is_err()
-        {
+        let Some(near) = self.near.as_mut() else {
+            return;
+        };
+        if near.block.capture(&self.chol, &self.matrix).is_err() {
             self.near = None;
+            return;
         }
+        near.matrix.values.copy_from_slice(&self.matrix.values);
+        Self::capture_entry(near, &self.chol);
+    }
+
+    /// After the near block's columns were computed for `near.matrix` (a full factorisation
+    /// or a near refresh): the entry block's contribution from the columns before it. An entry
+    /// block that cannot be captured is dropped (near refreshes only).
+    fn capture_entry(near: &mut NearBlock, chol: &Cholesky) {
+        if let Some(entry) = near.entry.as_mut()
+            && entry.block.capture(chol, &near.matrix).is_err()
+        {
+            near.entry = None;
+        }
+    }
+
+    /// Whether the factor in use has an entry block ready for [`Self::refresh_entry`].
+    pub fn has_entry(&self) -> bool {
+        (self.near.as_ref())
+            .and_then(|n| n.entry.as_ref())
+            .is_some_and(|e| e.block.captured() == self.chol.stamp() && self.chol.is_factorized())
+    }
+
+    /// Refactorisations of the entry block so far.
+    pub fn entry_refreshes(&self) -> u64 {
+        (self.near.as_ref())
+            .and_then(|n| n.entry.as_ref())
+            .map_or(0, |e| e.refreshes)
+    }
+
+    /// Refactorises the entry block of the factor in use, the rest kept, for the factor's
+    /// matrix changed by `change`: the elements all of whose nodes are in the entry block,
+    /// turned from their rotations in that matrix to their current ones (only they change the
+    /// entry block alone). The near block's capture holds for the new factor (its far columns
+    /// are unchanged). Returns what it did, as [`Self::refresh_near`]: nothing (no entry block
+    /// ready), the block, or a full factorisation at once of the matrix so changed when the
+    /// block is not positive definite.
+    ///
+    /// # Errors
+    /// A failed full factorisation, or a stopped background thread.
+    pub fn refresh_entry(
+        &mut self,
+        change: impl FnOnce(&mut [f64]),
+    ) -> Result<NearRefresh, FemError> {
+        if !self.has_entry() {
+            return Ok(NearRefresh::None);
+        }
+        let Some(near) = self.near.as_mut() else {
+            return Ok(NearRefresh::None);
+        };
+        let Some(entry) = near.entry.as_mut() else {
+            return Ok(NearRefresh::None);
+        };
+        // The matrix of the factor in use, changed in the entry block alone: it stays that of
+        // the factor whatever follows.
+        change(&mut near.matrix.values);
+        let before = self.chol.stamp();
+        if entry.block.refactor(&mut self.chol, &near.matrix).is_ok() {
+            entry.refreshes += 1;
+            near.block.carry_capture(before, &self.chol);
+            self.factor_age = Some(0);
+            return Ok(NearRefresh::Block);
+        }
+        self.factorize_near_matrix_now()
+    }
+
+    /// A block refresh that was not positive definite: the near block's matrix so changed,
+    /// whole, factorised at once (the matrix in use from now on).
+    fn factorize_near_matrix_now(&mut self) -> Result<NearRefresh, FemError> {
+        if let Some(near) = self.near.as_mut() {
+            std::mem::swap(&mut self.matrix, &mut near.matrix);
+        }
+        self.discard_background()?;
+        self.factorize_now()?;
+        if let Some(bg) = self.background.as_mut() {
+            bg.immediate += 1;
+        }
+        Ok(NearRefresh::Full)
     }
 
     /// Whether the factor has a near block ([`Self::refresh_near`]).
@@ -769,17 +883,12 @@ impl ReducedSystem {
         change(&mut near.matrix.values);
         if near.block.refactor(&mut self.chol, &near.matrix).is_ok() {
             near.refreshes += 1;
+            Self::capture_entry(near, &self.chol);
             self.factor_age = Some(0);
             return Ok(NearRefresh::Block);
         }
         // Not positive definite as mixed: this step's whole matrix, at once.
-        std::mem::swap(&mut self.matrix, &mut near.matrix);
-        self.discard_background()?;
-        self.factorize_now()?;
-        if let Some(bg) = self.background.as_mut() {
-            bg.immediate += 1;
-        }
-        Ok(NearRefresh::Full)
+        self.factorize_near_matrix_now()
     }
 
     /// The stamp of the factor in use ([`crate::linalg::Cholesky::stamp`]).

@@ -268,6 +268,16 @@ impl TrailingBlock {
         self.captured
     }
 
+    /// `chol` was refactorised from the factor of stamp `from` in columns at or after this
+    /// block's first alone (a later-starting [`TrailingBlock`]'s refresh): its columns before
+    /// the block are the captured ones, so the capture holds for `chol` too. Nothing when the
+    /// capture was not of `from`.
+    pub fn carry_capture(&mut self, from: u64, chol: &Cholesky) {
+        if self.captured != 0 && self.captured == from && chol.factorized {
+            self.captured = chol.stamp;
+        }
+    }
+
     /// `chol` and `a` of the size and pattern the block was made for.
     fn check(&self, chol: &Cholesky, a: &SymmetricMatrix) -> Result<(), LinalgError> {
         for (expected, got) in [

@@ -156,6 +156,10 @@ pub struct RunSummary {
     /// Refactorisations of the gel factor's near block alone (`solver.near_radius`; 0
     /// without it).
     pub near_factorizations: u64,
+    /// Refactorisations of the near block's entry block alone (`solver.entry_radius`; 0
+    /// without one).
+    #[serde(default)]
+    pub entry_factorizations: u64,
     /// `solver.gel_solve = "pcg"` or `"refine"`: CG iterations per step solved (or refined)
     /// by CG, mean (0 with the direct solve).
     pub pcg_iterations_mean: f64,
@@ -403,6 +407,7 @@ impl Statistics {
             background_factorizations: background.0,
             immediate_factorizations: background.1,
             near_factorizations: world.gel.near_refactorizations(),
+            entry_factorizations: world.gel.entry_refactorizations(),
             pcg_iterations_mean: pcg.map_or(0.0, |p| {
                 if p.steps == 0 {
                     0.0

@@ -288,6 +288,15 @@ fn factorisation_defaults_follow_the_mode() {
         let e = set(&[("solver.far_refresh_rotation", bad)]).unwrap_err();
         assert_eq!(e.field, "solver.far_refresh_rotation", "{bad}");
     }
+    assert_eq!(s.solver.entry_radius, NearRadiusSpec::Auto, "the default");
+    let entry = set(&[("solver.entry_radius", "12")]).unwrap();
+    assert_eq!(entry.solver.entry_radius, NearRadiusSpec::Radius(12.0));
+    let off = set(&[("solver.entry_radius", "\"off\"")]).unwrap();
+    assert_eq!(off.solver.entry_radius, NearRadiusSpec::Off);
+    for bad in ["0", "-1", "nan"] {
+        let e = set(&[("solver.entry_radius", bad)]).unwrap_err();
+        assert_eq!(e.field, "solver.entry_radius", "{bad}");
+    }
     for bad in ["\"sometimes\"", "true"] {
         let e = set(&[("solver.near_radius", bad)]).unwrap_err();
         assert!(e.to_string().contains("solver.near_radius"), "{bad}: {e}");

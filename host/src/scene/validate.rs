@@ -493,6 +493,14 @@ impl Scene {
                 format!("must be a positive distance [mm], \"auto\" or \"off\" (got {r})"),
             );
         }
+        if let NearRadiusSpec::Radius(r) = s.entry_radius
+            && !(r > 0.0 && r.is_finite())
+        {
+            return fail(
+                "solver.entry_radius",
+                format!("must be a positive distance [mm], \"auto\" or \"off\" (got {r})"),
+            );
+        }
         Ok(())
     }
 
