@@ -380,6 +380,10 @@ fn entry_block_steps_solve_with_a_far_matrix_a_near_block_and_a_later_entry_bloc
     let load = |k: usize| 4e-3 * (1 + k.min(27 - k)) as f64;
     let (near_alone, _) = check_block_steps(&near, &loaded, None, load);
     let (near_steps, entry_steps) = check_block_steps(&near, &loaded, Some(entry), load);
+    // An entry block as large as the near block is none: the near block's refreshes alone.
+    let (whole, none) = check_block_steps(&near, &loaded, Some(near.clone()), load);
+    assert!(none.is_empty(), "entry refreshes at {none:?}");
+    assert_eq!(whole, near_alone);
     println!("near refreshes without an entry block at {near_alone:?}");
     assert!(
         entry_steps.len() >= 2,
