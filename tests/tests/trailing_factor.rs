@@ -353,7 +353,7 @@ fn trailing_order_puts_the_marked_rows_last_and_keeps_the_plain_order_otherwise(
 /// matrix with `b ≠ j` is used.
 #[test]
 fn near_block_steps_solve_with_a_far_matrix_and_a_later_near_block() {
-    let (mesh, _, near) = box_with_near_column();
+    let (_, _, near) = box_with_near_column();
     let load = |k: usize| if k < 14 { 4e-3 } else { -4e-3 };
     let (near_steps, entry_steps) = check_block_steps(&near, &near, None, load);
     assert!(entry_steps.is_empty());
