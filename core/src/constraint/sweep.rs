@@ -222,6 +222,18 @@ impl<const M: usize> BlockGs<M> {
             }
             BatchStart::Own => None,
         };
+        if shared.is_none() {
+            // Every solve's own `W λ`, in one pass over `W` (each row's dots as
+            // `product_rows`'s).
+            for lambda in &mut batch.lambda[..count] {
+                for x in &mut lambda[..m] {
+                    if !x.is_finite() {
+                        *x = 0.0;
+                    }
+                }
+            }
+            product_many(w, &batch.lambda, count, m, &mut batch.res);
+        }
         let mut scale = [0.0; K];
         let mut active = [false; K];
         for k in 0..count {
@@ -234,12 +246,6 @@ impl<const M: usize> BlockGs<M> {
                     }
                 }
                 None => {
-                    for x in &mut lambda[..m] {
-                        if !x.is_finite() {
-                            *x = 0.0;
-                        }
-                    }
-                    product_rows(w, lambda, m, res);
                     for i in 0..m {
                         res[i] -= delta[i];
                     }
@@ -648,6 +654,75 @@ unsafe fn product_avx2<const M: usize>(
     product_inline(w, lambda, m, out);
 }
 
+/// `out[k] = W λ_k` over the used rows for the first `count` of `lambdas`, each row's dots
+/// exactly [`product_rows`]'s, in one pass over `W`: a row is read once for all of them (from
+/// the cache for the others), where `count` separate products would stream `W` `count` times.
+fn product_many<const M: usize, const K: usize>(
+    w: &[[f64; M]; M],
+    lambdas: &[[f64; M]; K],
+    count: usize,
+    m: usize,
+    out: &mut [[f64; M]; K],
+) {
+    #[cfg(target_arch = "x86_64")]
+    if crate::math::use_avx2() {
+        // SAFETY: AVX2 support was checked at run time.
+        unsafe { product_many_avx2(w, lambdas, count, m, out) };
+        return;
+    }
+    product_many_inline(w, lambdas, count, m, out);
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn product_many_avx2<const M: usize, const K: usize>(
+    w: &[[f64; M]; M],
+    lambdas: &[[f64; M]; K],
+    count: usize,
+    m: usize,
+    out: &mut [[f64; M]; K],
+) {
+    product_many_inline(w, lambdas, count, m, out);
+}
+
+#[inline(always)]
+fn product_many_inline<const M: usize, const K: usize>(
+    w: &[[f64; M]; M],
+    lambdas: &[[f64; M]; K],
+    count: usize,
+    m: usize,
+    out: &mut [[f64; M]; K],
+) {
+    let (m, count) = (m.min(M), count.min(K));
+    // Each row's `K` dots side by side: the same four partial sums per dot as `dot`, in the
+    // same order, the same tail, but `K` independent chains of additions instead of one.
+    let whole = m - m % 4;
+    for i in 0..m {
+        let row = &w[i][..m];
+        let mut acc = [[0.0f64; 4]; K];
+        let mut c = 0;
+        while c < whole {
+            let x = &row[c..c + 4];
+            for (a, l) in acc.iter_mut().zip(lambdas) {
+                let y = &l[c..c + 4];
+                a[0] += x[0] * y[0];
+                a[1] += x[1] * y[1];
+                a[2] += x[2] * y[2];
+                a[3] += x[3] * y[3];
+            }
+            c += 4;
+        }
+        for k in 0..count {
+            let a = &acc[k];
+            let mut tail = 0.0;
+            for (x, y) in row[whole..].iter().zip(&lambdas[k][whole..m]) {
+                tail += x * y;
+            }
+            out[k][i] = (a[0] + a[2]) + (a[1] + a[3]) + tail;
+        }
+    }
+}
+
 #[inline(always)]
 fn product_inline<const M: usize>(
     w: &[[f64; M]; M],
@@ -656,7 +731,37 @@ fn product_inline<const M: usize>(
     out: &mut [f64; M],
 ) {
     let m = m.min(M);
-    for i in 0..m {
+    // Four rows at a time: each row's sums are exactly `dot`'s (the same four partial sums in
+    // the same order, the same tail), but the four rows' chains of additions are independent,
+    // so they overlap instead of each waiting on its own latency.
+    // Whole blocks of four: of rows, and of columns within each row (as in `dot`).
+    let whole = m - m % 4;
+    let mut i = 0;
+    while i < whole {
+        let rows = [&w[i][..m], &w[i + 1][..m], &w[i + 2][..m], &w[i + 3][..m]];
+        let mut acc = [[0.0f64; 4]; 4];
+        let mut k = 0;
+        while k < whole {
+            let y = &lambda[k..k + 4];
+            for (a, r) in acc.iter_mut().zip(&rows) {
+                let x = &r[k..k + 4];
+                a[0] += x[0] * y[0];
+                a[1] += x[1] * y[1];
+                a[2] += x[2] * y[2];
+                a[3] += x[3] * y[3];
+            }
+            k += 4;
+        }
+        for (r, (a, row)) in acc.iter().zip(&rows).enumerate() {
+            let mut tail = 0.0;
+            for (x, y) in row[whole..].iter().zip(&lambda[whole..m]) {
+                tail += x * y;
+            }
+            out[i + r] = (a[0] + a[2]) + (a[1] + a[3]) + tail;
+        }
+        i += 4;
+    }
+    for i in whole..m {
         out[i] = dot(&w[i][..m], &lambda[..m]);
     }
 }
@@ -831,6 +936,51 @@ mod tests {
     use crate::kinematics::DhChain;
     use crate::payload::ComplianceFrame;
     use crate::synthetic::random_frame;
+
+    /// The product four rows at a time is `dot` row by row, bit for bit, for every `m` (whole
+    /// blocks of four and the rows and columns left over), in the dispatched copy and the plain
+    /// one.
+    #[test]
+    fn blocked_product_is_the_rows_dots_bit_for_bit() {
+        const M: usize = 24;
+        let mut seed = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            (seed >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+        };
+        let mut w = [[0.0; M]; M];
+        for row in &mut w {
+            for x in row.iter_mut() {
+                *x = next() * 1e3;
+            }
+        }
+        let mut lambda = [0.0; M];
+        for x in &mut lambda {
+            *x = next() * 1e-2;
+        }
+        for m in 0..=M {
+            let mut want = [7.0; M];
+            for i in 0..m {
+                want[i] = dot(&w[i][..m], &lambda[..m]);
+            }
+            let (mut plain, mut dispatched) = ([7.0; M], [7.0; M]);
+            product_inline(&w, &lambda, m, &mut plain);
+            product_rows(&w, &lambda, m, &mut dispatched);
+            let mut many = [[7.0; M]; 3];
+            let lambdas = [lambda, [0.0; M], lambda];
+            product_many(&w, &lambdas, 2, m, &mut many);
+            for i in 0..M {
+                assert_eq!(plain[i].to_bits(), want[i].to_bits(), "m {m}, row {i}");
+                assert_eq!(dispatched[i].to_bits(), want[i].to_bits(), "m {m}, row {i}");
+                assert_eq!(many[0][i].to_bits(), want[i].to_bits(), "m {m}, row {i}");
+                let zero = if i < m { 0.0 } else { 7.0 };
+                assert_eq!(many[1][i].to_bits(), f64::to_bits(zero), "m {m}, row {i}");
+                assert_eq!(many[2][i], 7.0, "beyond count: untouched");
+            }
+        }
+    }
 
     /// `K` solves of a batch against the same solves one at a time, bit for bit: on a frame with
     /// the base block, a tip contact (`with_contact`) and sliding points, `δ`s scaled apart so
