@@ -490,6 +490,11 @@ impl Cholesky {
         rel.is_finite() && rel <= SINGLE_PROBE_TOLERANCE
     }
 
+    /// The permuted position of each column (`None`: no permutation), fixed at construction.
+    pub fn inverse_permutation(&self) -> Option<&[usize]> {
+        self.symbolic.perm().map(|p| p.arrays().1)
+    }
+
     /// Solves `A x = b` in place (`rhs` holds `b` on entry, `x` on return).
     ///
     /// # Errors

@@ -307,6 +307,7 @@ pub fn gel_params(scene: &Scene) -> GelParams {
             FactorPrecisionSpec::Single => Precision::Single,
             FactorPrecisionSpec::Double => Precision::Double,
         },
+        far_residual_tolerance: scene.solver.far_residual_tolerance,
         near_nodes: None,
         entry_nodes: None,
     }
@@ -699,7 +700,7 @@ mod tests {
         let off = Scene {
             solver: crate::scene::SolverSpec {
                 entry_radius: NearRadiusSpec::Off,
-                ..scene.solver.clone()
+                ..scene.solver
             },
             ..scene.clone()
         };
@@ -710,7 +711,7 @@ mod tests {
         let no_near = Scene {
             solver: crate::scene::SolverSpec {
                 near_radius: NearRadiusSpec::Off,
-                ..scene.solver.clone()
+                ..scene.solver
             },
             ..scene
         };

@@ -405,7 +405,7 @@ fn check_block_steps(
     entry: Option<Vec<bool>>,
     load: impl Fn(usize) -> f64,
 ) -> (Vec<usize>, Vec<usize>) {
-    use needle_host::free_motion::{GelModel, GelParams, RefreshParams};
+    use needle_host::free_motion::{GelModel, GelParams};
     let (mesh, bottom, _) = box_with_near_column();
     let mut near = near.to_vec();
     if let Some(e) = &entry {
@@ -414,22 +414,10 @@ fn check_block_steps(
         }
     }
     let in_entry = |v: usize| entry.as_ref().is_some_and(|e| e[v]);
-    let plain = GelParams {
-        time_step: Some(0.05),
-        density: 1e-8,
-        ..GelParams::default()
-    };
+    let (plain, params) = block_params(&near);
     let params = GelParams {
-        background_factorization: true,
-        refactor_every: 2,
-        refresh: Some(RefreshParams {
-            rotation: 0.01,
-            far_rotation: 0.01,
-            ceiling: usize::MAX,
-        }),
-        near_nodes: Some(near.clone()),
         entry_nodes: entry.clone(),
-        ..plain.clone()
+        ..params
     };
     let mut model = GelModel::try_new(mesh.clone(), &bottom, &params).unwrap();
     assert!(
@@ -544,6 +532,34 @@ fn check_block_steps(
     (block_steps, entry_steps)
 }
 
+/// The plain gel of the block tests (solved whole at every step, for reference) and the same
+/// with the background pipeline, a refresh at 0.01 rad and the `near` block.
+fn block_params(
+    near: &[bool],
+) -> (
+    needle_host::free_motion::GelParams,
+    needle_host::free_motion::GelParams,
+) {
+    use needle_host::free_motion::{GelParams, RefreshParams};
+    let plain = GelParams {
+        time_step: Some(0.05),
+        density: 1e-8,
+        ..GelParams::default()
+    };
+    let params = GelParams {
+        background_factorization: true,
+        refactor_every: 2,
+        refresh: Some(RefreshParams {
+            rotation: 0.01,
+            far_rotation: 0.01,
+            ceiling: usize::MAX,
+        }),
+        near_nodes: Some(near.to_vec()),
+        ..plain.clone()
+    };
+    (plain, params)
+}
+
 /// The 637-node clamped box of the run-level tests, and its near column: the nodes within 5 mm
 /// of the vertical line through the box's centre.
 fn box_with_near_column() -> (needle_host::mesh::TetMesh, Vec<usize>, Vec<bool>) {
@@ -605,4 +621,91 @@ fn far_rotation_sends_fewer_far_matrices_and_keeps_the_near_refreshes() {
         "far_rotation 0.1 made {full_loose} full factorisations, 0.01 made {full_tight}"
     );
     assert!(near_loose >= 1, "the near block is still refreshed");
+}
+
+/// `GelParams::far_residual_tolerance`: a free motion whose right-hand side is, outside the near
+/// block, at most `τ` of its whole norm is solved with those entries dropped (bit for bit the
+/// factor's solve of the right-hand side zeroed there); any other is solved whole; `τ = 0`
+/// solves every one whole. Each step is an insertion's: the unloaded free motion, then a
+/// corrective motion `K⁻¹ g` by the factor in use for a force `g` on near nodes (the needle's
+/// constraint force), and every fourth step a force on a far node too, which the far field
+/// is then out of equilibrium by.
+#[test]
+fn far_residual_is_dropped_only_below_its_tolerance() {
+    use needle_host::free_motion::{GelModel, GelParams};
+    let (mesh, bottom, near) = box_with_near_column();
+    let top = mesh.nodes_on_plane(2, 20.0, 1e-9);
+    let far_top = *top.iter().find(|&&i| !near[i]).expect("a far top node");
+    let (plain, params) = block_params(&near);
+    let run = |tolerance: f64| {
+        let params = GelParams {
+            far_residual_tolerance: tolerance,
+            ..params.clone()
+        };
+        let mut model = GelModel::try_new(mesh.clone(), &bottom, &params).unwrap();
+        assert!(model.has_near_block());
+        let mut by_hand = GelModel::try_new(mesh.clone(), &bottom, &plain).unwrap();
+        let (mut dropped, mut whole) = (0, 0);
+        for k in 0..24 {
+            by_hand.positions_mut().copy_from_slice(model.positions());
+            let f_int = by_hand.compute_internal_forces().to_vec();
+            let mut rhs: Vec<f64> = (0..f_int.len())
+                .map(|g| {
+                    if model.is_fixed_dof(g) {
+                        0.0
+                    } else {
+                        -f_int[g]
+                    }
+                })
+                .collect();
+            let (mut far2, mut all2) = (0.0, 0.0);
+            for (g, v) in rhs.iter().enumerate() {
+                all2 += v * v;
+                if !near[g / 3] {
+                    far2 += v * v;
+                }
+            }
+            let drops = model.far_residual_drops();
+            let mut dx = model.free_motion_unloaded().unwrap().to_vec();
+            let expect_drop = far2 > 0.0 && far2.sqrt() <= tolerance * all2.sqrt();
+            if expect_drop {
+                for (g, v) in rhs.iter_mut().enumerate() {
+                    if !near[g / 3] {
+                        *v = 0.0;
+                    }
+                }
+                dropped += 1;
+            } else {
+                whole += 1;
+            }
+            assert_eq!(
+                model.far_residual_drops(),
+                drops + u64::from(expect_drop),
+                "step {k}: far share {:.3e}, tolerance {tolerance}",
+                (far2 / all2).sqrt()
+            );
+            model.solve(&mut rhs).unwrap();
+            // Exactly equal (a zero may keep another sign).
+            let same = dx.iter().zip(&rhs).all(|(a, b)| a == b);
+            assert!(same, "step {k}: the free motion is not the factor's solve");
+            // The corrective motion of a force on the near top nodes (and a far one).
+            let mut g = vec![0.0; dx.len()];
+            for &i in top.iter().filter(|&&i| near[i]) {
+                g[3 * i] = if k < 12 { 4e-3 } else { -4e-3 };
+            }
+            if k % 4 == 3 {
+                g[3 * far_top + 1] = 2e-3;
+            }
+            model.solve(&mut g).unwrap();
+            for (d, c) in dx.iter_mut().zip(&g) {
+                *d += c;
+            }
+            model.apply_displacement(&dx).unwrap();
+        }
+        (dropped, whole)
+    };
+    let (dropped, whole) = run(5e-3);
+    println!("tolerance 5e-3: {dropped} free motions with the far residual dropped, {whole} whole");
+    assert!(dropped >= 2 && whole >= 2, "the test is void");
+    assert_eq!(run(0.0), (0, 24), "τ = 0 solves every step whole");
 }

@@ -390,8 +390,9 @@ fn print_text(s: &RunSummary) {
     if s.background_factorizations + s.immediate_factorizations > 0 {
         let near = if s.near_factorizations > 0 {
             format!(
-                ", {} of the near block alone, {} of its entry block alone",
-                s.near_factorizations, s.entry_factorizations
+                ", {} of the near block alone, {} of its entry block alone; {} free motions \
+                 with the far residual dropped",
+                s.near_factorizations, s.entry_factorizations, s.far_residual_drops
             )
         } else {
             String::new()

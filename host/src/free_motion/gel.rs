@@ -71,6 +71,13 @@ pub struct GelParams {
     /// entry point, where the needle's base drags the gel's surface, that is most of the near
     /// block's refreshes, at a fraction of their cost. Ignored without a near block.
     pub entry_nodes: Option<Vec<bool>>,
+    /// With a near block: the far residual's tolerance `τ` of the free motion (0: none, every
+    /// solve exact). A step whose right-hand side `−f_int` has, on the dofs outside the near
+    /// block, a norm of at most `τ` times its whole norm solves with those entries dropped:
+    /// the forward substitution then skips every far supernode (the far field is left in
+    /// equilibrium to that relative tolerance, and its residual is solved whole by the first
+    /// step where it exceeds it). See [`super::FeModel::far_residual_drops`].
+    pub far_residual_tolerance: f64,
 }
 
 impl Default for GelParams {
@@ -92,6 +99,7 @@ impl Default for GelParams {
             factor_precision: Precision::Double,
             near_nodes: None,
             entry_nodes: None,
+            far_residual_tolerance: 0.0,
         }
     }
 }
@@ -247,6 +255,7 @@ impl FeModel<Tets> {
                     elements,
                     entry_dofs,
                     entry_elements,
+                    far_residual_tolerance: params.far_residual_tolerance,
                 }
             });
         let nd = (ordering == FillOrdering::NestedDissection).then_some(coords.as_slice());

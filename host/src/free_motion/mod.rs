@@ -185,6 +185,8 @@ struct NearLayout {
     elements: Vec<bool>,
     entry_dofs: Vec<bool>,
     entry_elements: Vec<bool>,
+    /// [`GelParams::far_residual_tolerance`].
+    far_residual_tolerance: f64,
 }
 
 impl<E: Elements> FeModel<E> {
@@ -221,6 +223,10 @@ impl<E: Elements> FeModel<E> {
             entry_dofs: (layout.near.as_ref())
                 .map(|n| n.entry_dofs.as_slice())
                 .filter(|d| !d.is_empty()),
+            far_residual_tolerance: layout
+                .near
+                .as_ref()
+                .map_or(0.0, |n| n.far_residual_tolerance),
         })?;
         // CG solves the current matrix: no rotation guard on the factor's age.
         let (near_elements, entry_elements) = match layout.near {
@@ -324,6 +330,12 @@ impl<E: Elements> FeModel<E> {
     /// one).
     pub fn entry_refactorizations(&self) -> u64 {
         self.sys.entry_refreshes()
+    }
+
+    /// Free motions solved with their far residual dropped
+    /// ([`GelParams::far_residual_tolerance`]; 0 without a near block or with `τ = 0`).
+    pub fn far_residual_drops(&self) -> u64 {
+        self.sys.far_residual_drops()
     }
 
     /// Whether the factor has a near block ([`GelParams::near_nodes`]): the option was given
@@ -497,7 +509,7 @@ impl<E: Elements> FeModel<E> {
         for (i, (d, fi)) in self.dx.iter_mut().zip(&self.f_int).enumerate() {
             *d = f_ext.map_or(0.0, |f| f[i]) - fi;
         }
-        self.sys.solve_global(&mut self.dx)?;
+        self.sys.solve_free_motion(&mut self.dx)?;
         if f_ext.is_none() && E::STATE_OF_POSITIONS {
             self.unloaded_solve = Some(stamp);
         }

@@ -72,6 +72,11 @@ struct NearBlock {
     refreshes: u64,
     /// The entry block inside it, eliminated last of all (`None`: none).
     entry: Option<EntryBlock>,
+    /// Whether each reduced dof lies outside the block (is eliminated before it).
+    far: Vec<bool>,
+    /// The free motion's far-residual tolerance (0: none) and the solves that dropped it.
+    far_residual_tolerance: f64,
+    far_drops: u64,
 }
 
 /// The entry block: the trailing part of the near block, around the path's entry point,
@@ -154,6 +159,9 @@ pub(super) struct SystemLayout<'a, I: Iterator<Item = (usize, usize)>, F: Fn() -
     /// Global dofs among `near_dofs` eliminated last of all, whose block is refactorised on
     /// its own again ([`ReducedSystem::refresh_entry`]); ignored without `near_dofs`.
     pub entry_dofs: Option<&'a [bool]>,
+    /// With `near_dofs`: the free motion's far-residual tolerance
+    /// ([`super::GelParams::far_residual_tolerance`]; 0: none).
+    pub far_residual_tolerance: f64,
 }
 
 impl ReducedSystem {
@@ -231,6 +239,9 @@ impl ReducedSystem {
             .then(|| TrailingBlock::new(&chol, &pattern, free.len() - near_count).ok())
             .flatten()
             .map(|block| NearBlock {
+                far: far_dofs(&chol, block.first()),
+                far_residual_tolerance: layout.far_residual_tolerance.max(0.0),
+                far_drops: 0,
                 block,
                 matrix: SymmetricMatrix::zeros(pattern.clone()),
                 refreshes: 0,
@@ -896,6 +907,45 @@ impl ReducedSystem {
         self.chol.stamp()
     }
 
+    /// The free motion's solve ([`Self::solve_global`]), but with a near block and a far-residual
+    /// tolerance `τ > 0`, a right-hand side whose entries outside the block have a norm of at
+    /// most `τ` times the whole one is solved with those entries set to zero: the forward
+    /// substitution skips every supernode before the block's (their rows stay zero), and the
+    /// backward one is whole. Counted in [`Self::far_residual_drops`].
+    pub fn solve_free_motion(&mut self, rhs: &mut [f64]) -> Result<(), FemError> {
+        let Some(near) = self
+            .near
+            .as_mut()
+            .filter(|n| n.far_residual_tolerance > 0.0)
+        else {
+            return self.solve_global(rhs);
+        };
+        let (mut far2, mut all2) = (0.0, 0.0);
+        for (&g, &far) in self.free.iter().zip(&near.far) {
+            let v2 = rhs[g] * rhs[g];
+            all2 += v2;
+            if far {
+                far2 += v2;
+            }
+        }
+        let tol = near.far_residual_tolerance;
+        // Not NaN-safe by design of the comparison: a non-finite norm keeps the whole solve.
+        if far2 > 0.0 && far2 <= tol * tol * all2 {
+            for (&g, &far) in self.free.iter().zip(&near.far) {
+                if far {
+                    rhs[g] = 0.0;
+                }
+            }
+            near.far_drops += 1;
+        }
+        self.solve_global(rhs)
+    }
+
+    /// Free motions solved with their far residual dropped ([`Self::solve_free_motion`]).
+    pub fn far_residual_drops(&self) -> u64 {
+        self.near.as_ref().map_or(0, |n| n.far_drops)
+    }
+
     /// Solves in place over global dofs (fixed entries set to zero).
     pub fn solve_global(&mut self, rhs: &mut [f64]) -> Result<(), FemError> {
         for (k, &g) in self.free.iter().enumerate() {
@@ -939,4 +989,13 @@ impl ReducedSystem {
         }
         Ok(())
     }
+}
+
+/// Whether each reduced dof is eliminated before the permuted column `first` (outside a
+/// trailing block that starts there).
+fn far_dofs(chol: &Cholesky, first: usize) -> Vec<bool> {
+    let inv = chol.inverse_permutation();
+    (0..chol.dim())
+        .map(|k| inv.map_or(k, |p| p[k]) < first)
+        .collect()
 }

@@ -160,6 +160,10 @@ pub struct RunSummary {
     /// without one).
     #[serde(default)]
     pub entry_factorizations: u64,
+    /// Gel free motions solved with their far residual dropped
+    /// (`solver.far_residual_tolerance`; 0 without a near block).
+    #[serde(default)]
+    pub far_residual_drops: u64,
     /// `solver.gel_solve = "pcg"` or `"refine"`: CG iterations per step solved (or refined)
     /// by CG, mean (0 with the direct solve).
     pub pcg_iterations_mean: f64,
@@ -408,6 +412,7 @@ impl Statistics {
             immediate_factorizations: background.1,
             near_factorizations: world.gel.near_refactorizations(),
             entry_factorizations: world.gel.entry_refactorizations(),
+            far_residual_drops: world.gel.far_residual_drops(),
             pcg_iterations_mean: pcg.map_or(0.0, |p| {
                 if p.steps == 0 {
                     0.0

@@ -134,6 +134,9 @@ pub(super) fn default_pcg_max_iterations() -> u32 {
 pub(super) fn default_refresh_rotation() -> f64 {
     0.05
 }
+pub(super) fn default_far_residual_tolerance() -> f64 {
+    1e-3
+}
 pub(super) fn default_factor_precision() -> FactorPrecisionSpec {
     FactorPrecisionSpec::Single
 }

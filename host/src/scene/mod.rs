@@ -565,7 +565,17 @@ pub struct SolverSpec {
     /// [`ENTRY_AUTO_FACTOR`] times the near block's radius.
     #[serde(default)]
     pub entry_radius: NearRadiusSpec,
+    /// With a near block (`near_radius`): the free motion's far-residual tolerance `τ`, at most
+    /// [`FAR_RESIDUAL_MAX`]. A step whose right-hand side `−f_int` has, outside the near
+    /// block, a norm of at most `τ` times its whole norm solves with those entries dropped,
+    /// skipping the forward substitution over every far supernode; the first step where the
+    /// far residual exceeds it solves it whole. 0: every solve exact.
+    #[serde(default = "default_far_residual_tolerance")]
+    pub far_residual_tolerance: f64,
 }
+
+/// The largest `solver.far_residual_tolerance`.
+pub const FAR_RESIDUAL_MAX: f64 = 0.1;
 
 /// `solver.entry_radius = "auto"`: the entry block's radius over the near block's. Traced on the
 /// complex scene at 19 800 nodes (near radius 7.7 mm), the elements that fired the full
@@ -707,6 +717,7 @@ impl Default for SolverSpec {
             near_radius: NearRadiusSpec::Auto,
             far_refresh_rotation: None,
             entry_radius: NearRadiusSpec::Auto,
+            far_residual_tolerance: default_far_residual_tolerance(),
         }
     }
 }

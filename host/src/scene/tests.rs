@@ -297,6 +297,16 @@ fn factorisation_defaults_follow_the_mode() {
         let e = set(&[("solver.entry_radius", bad)]).unwrap_err();
         assert_eq!(e.field, "solver.entry_radius", "{bad}");
     }
+    assert_eq!(s.solver.far_residual_tolerance, 1e-3, "the default");
+    let exact = set(&[("solver.far_residual_tolerance", "0")]).unwrap();
+    assert_eq!(exact.solver.far_residual_tolerance, 0.0);
+    let gel = crate::setup::gel_params(&set(&[("solver.far_residual_tolerance", "0.01")]).unwrap());
+    assert_eq!(gel.far_residual_tolerance, 0.01, "reaches the gel model");
+    for bad in ["-1e-3", "0.2", "nan", "inf"] {
+        let e = set(&[("solver.far_residual_tolerance", bad)]).unwrap_err();
+        assert_eq!(e.field, "solver.far_residual_tolerance", "{bad}");
+        assert!(e.to_string().contains("every solve exact"), "{e}");
+    }
     for bad in ["\"sometimes\"", "true"] {
         let e = set(&[("solver.near_radius", bad)]).unwrap_err();
         assert!(e.to_string().contains("solver.near_radius"), "{bad}: {e}");

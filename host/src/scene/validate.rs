@@ -3,7 +3,7 @@
 //! insertion), each value against its physical meaning and a range where a number far outside
 //! it can only be a typo or an attack (a needle of 10³⁰⁰ MPa, a time step of 10⁻³⁰⁰ s).
 
-use super::{NearRadiusSpec, PoseSpec, SampledPath, Scene};
+use super::{FAR_RESIDUAL_MAX, NearRadiusSpec, PoseSpec, SampledPath, Scene};
 use crate::free_motion::LAG_ROTATION_LIMIT;
 use needle_core::kinematics::{Kinematics, Robot};
 
@@ -499,6 +499,13 @@ impl Scene {
             return fail(
                 "solver.entry_radius",
                 format!("must be a positive distance [mm], \"auto\" or \"off\" (got {r})"),
+            );
+        }
+        let tol = s.far_residual_tolerance;
+        if !(0.0..=FAR_RESIDUAL_MAX).contains(&tol) {
+            return fail(
+                "solver.far_residual_tolerance",
+                format!("must be between 0 (every solve exact) and {FAR_RESIDUAL_MAX} (got {tol})"),
             );
         }
         Ok(())
