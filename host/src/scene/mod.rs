@@ -592,11 +592,11 @@ pub const NEAR_AUTO_REACH: f64 = 4.0;
 /// node spacings, so that an element whose centroid is that close has all its nodes inside.
 pub const NEAR_AUTO_SPACINGS: f64 = 1.5;
 
-/// `solver.near_radius = "auto"`: the smallest gel (nodes) given a near block. Below it a full
-/// factorisation costs about as much as a few steps (10 ms at 1500 nodes) and the block saves
-/// nothing measurable; at 5040 nodes it costs 83 ms and the block cuts the CPU per step by a
-/// sixth (see `docs/architecture.md`).
-pub const NEAR_AUTO_MIN_NODES: usize = 3000;
+/// `solver.near_radius = "auto"`: the smallest gel (nodes) given a near block. With the entry
+/// block and the far residual's tolerance, the block cuts the complex scene's CPU per step by
+/// about a fifth at 1485 and 1815 nodes and a tenth at 1000; at 600 nodes it saves nothing
+/// measurable (see `docs/architecture.md`).
+pub const NEAR_AUTO_MIN_NODES: usize = 1000;
 
 /// The near block's radius, or when to have one (`solver.near_radius`).
 #[derive(Clone, Copy, Debug, PartialEq, Default)]

@@ -262,6 +262,11 @@ fn factorisation_defaults_follow_the_mode() {
     let at = |nodes| s.solver.near_radius.radius(nodes, box_volume).unwrap();
     assert!((at(5040) - 9.8).abs() < 0.05, "{}", at(5040));
     assert!((at(19_800) - 7.7).abs() < 0.05, "{}", at(19_800));
+    assert!(
+        (at(1485) - 12.7).abs() < 0.05,
+        "the benchmark gels: {}",
+        at(1485)
+    );
     let near = set(&[("solver.near_radius", "8.5")]).unwrap();
     assert_eq!(near.solver.near_radius, NearRadiusSpec::Radius(8.5));
     assert_eq!(
