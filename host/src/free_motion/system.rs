@@ -929,7 +929,7 @@ impl ReducedSystem {
             }
         }
         let tol = near.far_residual_tolerance;
-        // Not NaN-safe by design of the comparison: a non-finite norm keeps the whole solve.
+        // A NaN or infinite norm fails this test: such a right-hand side is solved whole.
         if far2 > 0.0 && far2 <= tol * tol * all2 {
             for (&g, &far) in self.free.iter().zip(&near.far) {
                 if far {
