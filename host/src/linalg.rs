@@ -49,6 +49,9 @@ pub enum LinalgError {
         /// Length given.
         got: usize,
     },
+    /// A deferred solve that cannot be made or finished ([`Cholesky::complete_far`]).
+    #[error("deferred solve: {0}")]
+    Deferred(&'static str),
 }
 
 /// The precision a [`Cholesky`] factor is stored and solved in.
@@ -225,6 +228,12 @@ pub struct Cholesky {
     stamp: u64,
     fallbacks: u64,
     probe_error: Option<f64>,
+    /// The deferred solve ([`Cholesky::solve_deferring_far`]): the stamp of the factor it was
+    /// made with (0: none), its permuted forward result (`f64` factor) and the permuted
+    /// vector [`Cholesky::complete_far`] works on.
+    pending_stamp: u64,
+    pending: Vec<f64>,
+    far_x: Vec<f64>,
 }
 
 /// A single-precision factor: `L` in `f32`, the matrix values rounded to `f32`, the solve's
@@ -236,6 +245,9 @@ struct SingleFactor {
     solve_scratch: sparse_rhs::Scratch<f32>,
     probe_x: Vec<f64>,
     probe_b: Vec<f64>,
+    /// The deferred solve's forward result and [`Cholesky::complete_far`]'s vector, in `f32`.
+    pending: Vec<f32>,
+    far_x: Vec<f32>,
 }
 
 impl fmt::Debug for Cholesky {
@@ -322,6 +334,8 @@ impl Cholesky {
                     solve_scratch: sparse_rhs::Scratch::new(),
                     probe_x: probe_vector(n),
                     probe_b: vec![0.0; n],
+                    pending: Vec::new(),
+                    far_x: Vec::new(),
                 }),
             ),
         };
@@ -345,6 +359,9 @@ impl Cholesky {
             stamp: 0,
             fallbacks: 0,
             probe_error: None,
+            pending_stamp: 0,
+            pending: Vec::new(),
+            far_x: Vec::new(),
         })
     }
 
@@ -495,6 +512,151 @@ impl Cholesky {
         self.symbolic.perm().map(|p| p.arrays().1)
     }
 
+    /// Where a solve can stop before the rows eliminated before permuted column `first` (a
+    /// trailing block's, [`TrailingBlock::first`]): the first supernode reaching `first` and
+    /// its first column, from which on [`Cholesky::solve_deferring_far`] and
+    /// [`Cholesky::solve_near_many`] solve exactly. `None` for a simplicial factor.
+    pub fn deferral_split(&self, first: usize) -> Option<(usize, usize)> {
+        sparse_rhs::split_at(&self.symbolic, first)
+    }
+
+    /// Whether reduced row `i` lies from permuted column `split.1` on (where the deferred
+    /// solves are exact).
+    pub fn is_after_split(&self, i: usize, split: (usize, usize)) -> bool {
+        self.inverse_permutation().map_or(i, |p| p[i]) >= split.1
+    }
+
+    /// Solves `A x = b` for one right-hand side on the rows from `split.1` on only
+    /// ([`Cholesky::deferral_split`]): `rhs` returns `x` there and zero on the other rows,
+    /// whose solve [`Cholesky::complete_far`] finishes later from the forward substitution
+    /// kept here, for the whole solution or for the solution with other values on the rows
+    /// from `split.1` on (the same factor's solution plus a response to loads on those rows).
+    /// The rows it returns are, bit for bit, those of [`Cholesky::solve_in_place`].
+    ///
+    /// # Errors
+    /// [`LinalgError::NotFactorized`], [`LinalgError::DimensionMismatch`],
+    /// [`LinalgError::Deferred`] for a simplicial factor.
+    pub fn solve_deferring_far(
+        &mut self,
+        rhs: &mut [f64],
+        split: (usize, usize),
+    ) -> Result<(), LinalgError> {
+        self.check_solve(rhs, 1)?;
+        self.pending_stamp = 0;
+        let done = match self.single.as_mut() {
+            None => sparse_rhs::solve_near_in_place(
+                &self.symbolic,
+                &self.l_values,
+                rhs,
+                1,
+                split,
+                Some(&mut self.pending),
+                &mut self.solve_scratch,
+            ),
+            Some(sf) => sf.solve_near(&self.symbolic, rhs, 1, split, true),
+        };
+        done.ok_or(LinalgError::Deferred("a simplicial factor"))?;
+        self.pending_stamp = self.stamp;
+        Ok(())
+    }
+
+    /// Solves `A X = B` for `ncols` column-major right-hand sides on the rows from `split.1`
+    /// on only: zero on the other rows, nothing kept. With loads on those rows only (the
+    /// compliance columns of points there), these are the columns' exact rows, bit for bit
+    /// those of [`Cholesky::solve_many_in_place`], at the cost of the factor's trailing part.
+    ///
+    /// # Errors
+    /// As [`Cholesky::solve_deferring_far`].
+    pub fn solve_near_many(
+        &mut self,
+        rhs: &mut [f64],
+        ncols: usize,
+        split: (usize, usize),
+    ) -> Result<(), LinalgError> {
+        self.check_solve(rhs, ncols)?;
+        if ncols == 0 {
+            return Ok(());
+        }
+        let done = match self.single.as_mut() {
+            None => sparse_rhs::solve_near_in_place(
+                &self.symbolic,
+                &self.l_values,
+                rhs,
+                ncols,
+                split,
+                None,
+                &mut self.solve_scratch,
+            ),
+            Some(sf) => sf.solve_near(&self.symbolic, rhs, ncols, split, false),
+        };
+        done.ok_or(LinalgError::Deferred("a simplicial factor"))?;
+        Ok(())
+    }
+
+    /// Finishes the last [`Cholesky::solve_deferring_far`] (same `split`): given `x` on the
+    /// rows from `split.1` on (that solve's values, or others: its solution plus a response
+    /// to loads on those rows only, whose forward substitution is zero on the other rows),
+    /// writes the rows before `split.1` so that `x` solves `A x = b + r` for that response's
+    /// load `r`. The rows from `split.1` on are left as they are.
+    ///
+    /// # Errors
+    /// [`LinalgError::DimensionMismatch`]; [`LinalgError::Deferred`] when the factor changed
+    /// since, or no deferred solve was made with it.
+    pub fn complete_far(
+        &mut self,
+        x: &mut [f64],
+        split: (usize, usize),
+    ) -> Result<(), LinalgError> {
+        let n = self.dim();
+        if x.len() != n {
+            return Err(LinalgError::DimensionMismatch {
+                expected: n,
+                got: x.len(),
+            });
+        }
+        if self.pending_stamp == 0 || self.pending_stamp != self.stamp {
+            return Err(LinalgError::Deferred(
+                "no deferred solve with the factor in use",
+            ));
+        }
+        let done = match self.single.as_mut() {
+            None => complete_far_widened(
+                &self.symbolic,
+                &self.l_values,
+                &self.pending,
+                &mut self.far_x,
+                x,
+                split,
+                &mut self.solve_scratch,
+            ),
+            Some(sf) => complete_far_widened(
+                &self.symbolic,
+                &sf.l,
+                &sf.pending,
+                &mut sf.far_x,
+                x,
+                split,
+                &mut sf.solve_scratch,
+            ),
+        };
+        done.ok_or(LinalgError::Deferred("a simplicial factor"))
+    }
+
+    /// The checks of a solve of `ncols` right-hand sides in `rhs`.
+    fn check_solve(&self, rhs: &[f64], ncols: usize) -> Result<(), LinalgError> {
+        if !self.factorized {
+            return Err(LinalgError::NotFactorized);
+        }
+        let n = self.dim();
+        if rhs.len() != n * ncols {
+            return Err(LinalgError::DimensionMismatch {
+                expected: n * ncols,
+                got: rhs.len(),
+            });
+        }
+        Ok(())
+    }
+
     /// Solves `A x = b` in place (`rhs` holds `b` on entry, `x` on return).
     ///
     /// # Errors
@@ -514,16 +676,8 @@ impl Cholesky {
         rhs: &mut [f64],
         ncols: usize,
     ) -> Result<(), LinalgError> {
-        if !self.factorized {
-            return Err(LinalgError::NotFactorized);
-        }
+        self.check_solve(rhs, ncols)?;
         let n = self.dim();
-        if rhs.len() != n * ncols {
-            return Err(LinalgError::DimensionMismatch {
-                expected: n * ncols,
-                got: rhs.len(),
-            });
-        }
         if ncols == 0 {
             return Ok(());
         }
@@ -549,7 +703,71 @@ impl Cholesky {
     }
 }
 
+/// [`Cholesky::complete_far`] with a factor in `T`: the permuted vector from the kept forward
+/// result `pending` (rows before `split.1`) and `x` (rounded to `T`, the other rows), the far
+/// backward substitution, and its rows widened back into `x`.
+fn complete_far_widened<T: sparse_rhs::Real>(
+    symbolic: &SymbolicCholesky<usize>,
+    l: &[T],
+    pending: &[T],
+    far_x: &mut Vec<T>,
+    x: &mut [f64],
+    split: (usize, usize),
+    scratch: &mut sparse_rhs::Scratch<T>,
+) -> Option<()> {
+    let n = symbolic.nrows();
+    let fwd = symbolic.perm().map(|p| p.arrays().0);
+    let at = |k: usize| fwd.map_or(k, |f| f[k]);
+    far_x.clear();
+    far_x.extend((0..n).map(|k| {
+        if k < split.1 {
+            pending[k]
+        } else {
+            T::from_f64(x[at(k)])
+        }
+    }));
+    sparse_rhs::complete_far(symbolic, l, far_x, split, scratch)?;
+    for k in 0..split.1 {
+        x[at(k)] = far_x[k].to_f64();
+    }
+    Some(())
+}
+
 impl SingleFactor {
+    /// [`sparse_rhs::solve_near_in_place`] of `ncols` `f64` right-hand sides with the `f32`
+    /// factor (rounded, solved, widened), keeping the forward result when `keep`.
+    fn solve_near(
+        &mut self,
+        symbolic: &SymbolicCholesky<usize>,
+        rhs: &mut [f64],
+        ncols: usize,
+        split: (usize, usize),
+        keep: bool,
+    ) -> Option<usize> {
+        let n = symbolic.nrows();
+        if self.rhs.len() < n * ncols {
+            self.rhs.resize(n * ncols, 0.0);
+        }
+        let buf = &mut self.rhs[..n * ncols];
+        for (d, &v) in buf.iter_mut().zip(rhs.iter()) {
+            *d = v as f32;
+        }
+        let keep = keep.then_some(&mut self.pending);
+        let done = sparse_rhs::solve_near_in_place(
+            symbolic,
+            &self.l,
+            buf,
+            ncols,
+            split,
+            keep,
+            &mut self.solve_scratch,
+        )?;
+        for (d, &v) in rhs.iter_mut().zip(buf.iter()) {
+            *d = f64::from(v);
+        }
+        Some(done)
+    }
+
     /// Solves `ncols` column-major `f64` right-hand sides in place with the `f32` factor:
     /// rounded to `f32`, solved, widened back. `mem` must hold the solve scratch for `ncols`.
     fn solve_in_place(

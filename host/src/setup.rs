@@ -308,6 +308,7 @@ pub fn gel_params(scene: &Scene) -> GelParams {
             FactorPrecisionSpec::Double => Precision::Double,
         },
         far_residual_tolerance: scene.solver.far_residual_tolerance,
+        defer_far: scene.solver.defer_far,
         near_nodes: None,
         entry_nodes: None,
     }

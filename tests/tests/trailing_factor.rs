@@ -709,3 +709,95 @@ fn far_residual_is_dropped_only_below_its_tolerance() {
     assert!(dropped >= 2 && whole >= 2, "the test is void");
     assert_eq!(run(0.0), (0, 24), "τ = 0 solves every step whole");
 }
+
+/// `GelParams::defer_far`: the free motion solved on the near block's rows only
+/// (`free_motion_deferring_far`) is, bit for bit, the whole free motion there and zero on the
+/// far dofs; a corrective motion for a force on near nodes, solved on the near rows only
+/// (`solve_columns_near`) and added, then finished by `complete_far`, is the whole step (free
+/// plus corrective motion, each solved whole) to round-off. Every fourth step the force also
+/// reaches a far node: the free motion is then finished first and the force solved whole, as
+/// the step pipeline does when a gel point of its frame lies outside the near rows. Both
+/// models take the deferred model's steps.
+#[test]
+fn deferred_far_rows_give_the_whole_step() {
+    use needle_host::free_motion::{GelModel, GelParams};
+    let (mesh, bottom, near) = box_with_near_column();
+    let top = mesh.nodes_on_plane(2, 20.0, 1e-9);
+    let far_top = *top.iter().find(|&&i| !near[i]).expect("a far top node");
+    let (_, params) = block_params(&near);
+    let whole_params = GelParams {
+        defer_far: false,
+        ..params.clone()
+    };
+    let deferring = GelParams {
+        defer_far: true,
+        ..params
+    };
+    let mut whole = GelModel::try_new(mesh.clone(), &bottom, &whole_params).unwrap();
+    let mut model = GelModel::try_new(mesh.clone(), &bottom, &deferring).unwrap();
+    assert!(model.defers_far() && !whole.defers_far());
+    let n = model.dof_count();
+    let near_top: Vec<usize> = top.iter().copied().filter(|&i| near[i]).collect();
+    assert!(
+        near_top
+            .iter()
+            .all(|&i| (3 * i..3 * i + 3).all(|d| model.is_deferral_exact(d))),
+        "the near top nodes are solved exactly"
+    );
+    assert!(!model.is_deferral_exact(3 * far_top));
+    let mut worst: f64 = 0.0;
+    for k in 0..24 {
+        let free_whole = whole.free_motion_unloaded().unwrap().to_vec();
+        let mut dx = model.free_motion_deferring_far().unwrap().to_vec();
+        for g in 0..n {
+            let expect = if model.is_deferral_exact(g) || model.is_fixed_dof(g) {
+                free_whole[g]
+            } else {
+                0.0
+            };
+            assert!(dx[g] == expect, "step {k} dof {g}: {} vs {expect}", dx[g]);
+        }
+        let mut g = vec![0.0; n];
+        for &i in &near_top {
+            g[3 * i] = if k < 12 { 4e-3 } else { -4e-3 };
+        }
+        let far_load = k % 4 == 3;
+        if far_load {
+            g[3 * far_top + 1] = 2e-3;
+        }
+        let mut expect = g.clone();
+        whole.solve(&mut expect).unwrap();
+        for (e, f) in expect.iter_mut().zip(&free_whole) {
+            *e += f;
+        }
+        let mut c = g.clone();
+        if far_load {
+            model.complete_far(&mut dx).unwrap();
+            model.solve_columns(&mut c, 1).unwrap();
+            for (d, v) in dx.iter_mut().zip(&c) {
+                *d += v;
+            }
+        } else {
+            model.solve_columns_near(&mut c, 1).unwrap();
+            for (d, v) in dx.iter_mut().zip(&c) {
+                *d += v;
+            }
+            model.complete_far(&mut dx).unwrap();
+        }
+        let scale = expect.iter().fold(0.0_f64, |m, v| m.max(v.abs()));
+        let err = dx
+            .iter()
+            .zip(&expect)
+            .fold(0.0_f64, |m, (a, b)| m.max((a - b).abs()));
+        assert!(err <= 1e-10 * scale, "step {k}: {err:e} of {scale:e}");
+        worst = worst.max(err / scale);
+        // Both models take the same step, so that the next free motions compare bit for bit.
+        whole.apply_displacement(&dx).unwrap();
+        model.apply_displacement(&dx).unwrap();
+    }
+    println!("deferred against whole steps: worst relative difference {worst:.2e}");
+    assert!(
+        worst > 0.0,
+        "the far rows were solved another way: not bit for bit"
+    );
+}

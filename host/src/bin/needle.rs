@@ -391,8 +391,11 @@ fn print_text(s: &RunSummary) {
         let near = if s.near_factorizations > 0 {
             format!(
                 ", {} of the near block alone, {} of its entry block alone; {} free motions \
-                 with the far residual dropped",
-                s.near_factorizations, s.entry_factorizations, s.far_residual_drops
+                 with the far residual dropped; {} steps whose far rows could not wait",
+                s.near_factorizations,
+                s.entry_factorizations,
+                s.far_residual_drops,
+                s.deferral_fallbacks
             )
         } else {
             String::new()

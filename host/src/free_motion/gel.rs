@@ -78,6 +78,10 @@ pub struct GelParams {
     /// equilibrium to that relative tolerance, and its residual is solved whole by the first
     /// step where it exceeds it). See [`super::FeModel::far_residual_drops`].
     pub far_residual_tolerance: f64,
+    /// With a near block and the direct solve: the far rows of each step solved once, after
+    /// the constraint solve, for the free and the corrective motion together
+    /// ([`super::FeModel::free_motion_deferring_far`], [`super::FeModel::complete_far`]).
+    pub defer_far: bool,
 }
 
 impl Default for GelParams {
@@ -100,6 +104,7 @@ impl Default for GelParams {
             near_nodes: None,
             entry_nodes: None,
             far_residual_tolerance: 0.0,
+            defer_far: false,
         }
     }
 }
@@ -256,6 +261,7 @@ impl FeModel<Tets> {
                     entry_dofs,
                     entry_elements,
                     far_residual_tolerance: params.far_residual_tolerance,
+                    defer_far: params.defer_far,
                 }
             });
         let nd = (ordering == FillOrdering::NestedDissection).then_some(coords.as_slice());

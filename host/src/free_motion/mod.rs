@@ -158,9 +158,12 @@ pub struct FeModel<E: Elements> {
     pass_positions: Vec<Vector3<f64>>,
     /// The stamp of the factor the last unloaded free motion `dx` was solved with, while the
     /// element state it was solved from is still current (`None`: no such solve).
-    unloaded_solve: Option<u64>,
+    unloaded_solve: Option<(u64, bool)>,
     /// Unloaded free motions that repeated the last one without a solve.
     repeated: u64,
+    /// Steps whose deferred far rows were finished before the constraint solve
+    /// ([`FeModel::record_deferral_fallback`]).
+    deferral_fallbacks: u64,
 }
 
 /// Which dofs a model fixes, its regularisation, and its system settings.
@@ -187,6 +190,8 @@ struct NearLayout {
     entry_elements: Vec<bool>,
     /// [`GelParams::far_residual_tolerance`].
     far_residual_tolerance: f64,
+    /// [`GelParams::defer_far`].
+    defer_far: bool,
 }
 
 impl<E: Elements> FeModel<E> {
@@ -227,6 +232,7 @@ impl<E: Elements> FeModel<E> {
                 .near
                 .as_ref()
                 .map_or(0.0, |n| n.far_residual_tolerance),
+            defer_far: layout.near.as_ref().is_some_and(|n| n.defer_far),
         })?;
         // CG solves the current matrix: no rotation guard on the factor's age.
         let (near_elements, entry_elements) = match layout.near {
@@ -245,6 +251,7 @@ impl<E: Elements> FeModel<E> {
             lag,
             pass_positions: Vec::new(),
             unloaded_solve: None,
+            deferral_fallbacks: 0,
             repeated: 0,
         })
     }
@@ -427,7 +434,7 @@ impl<E: Elements> FeModel<E> {
     /// thread.
     pub fn free_motion(&mut self, f_ext: &[f64]) -> Result<&[f64], FemError> {
         check_vec("external loads", f_ext, self.dof_count())?;
-        self.free_motion_with(Some(f_ext))
+        self.free_motion_with(Some(f_ext), false)
     }
 
     /// [`FeModel::free_motion`] without external load (the needle and the gel of an insertion:
@@ -444,10 +451,68 @@ impl<E: Elements> FeModel<E> {
     /// # Errors
     /// A failed factorisation, or a stopped background thread.
     pub fn free_motion_unloaded(&mut self) -> Result<&[f64], FemError> {
-        self.free_motion_with(None)
+        self.free_motion_with(None, false)
     }
 
-    fn free_motion_with(&mut self, f_ext: Option<&[f64]>) -> Result<&[f64], FemError> {
+    /// Whether [`FeModel::free_motion_deferring_far`] can be used: a near block, the direct
+    /// solve and [`GelParams::defer_far`].
+    pub fn defers_far(&self) -> bool {
+        self.sys.deferral().is_some()
+    }
+
+    /// Whether the deferred solves ([`FeModel::free_motion_deferring_far`],
+    /// [`FeModel::solve_columns_near`]) are exact on global dof `dof`: the dofs eliminated from
+    /// the near block's first supernode on, and the fixed ones. `false` without deferral.
+    pub fn is_deferral_exact(&self, dof: usize) -> bool {
+        self.sys.is_deferral_exact(dof)
+    }
+
+    /// [`FeModel::free_motion_unloaded`] with the far rows deferred: `Δx_free` exact on the
+    /// dofs of [`FeModel::is_deferral_exact`] and zero on the others, which
+    /// [`FeModel::complete_far`] finishes, for this free motion plus any corrective motion on
+    /// those dofs, with one backward substitution over the far part of the factor instead of
+    /// one per solve. The rows it gives are bit for bit the whole free motion's.
+    ///
+    /// # Errors
+    /// No deferral ([`FeModel::defers_far`]), a failed factorisation, or a stopped
+    /// background thread.
+    pub fn free_motion_deferring_far(&mut self) -> Result<&[f64], FemError> {
+        self.free_motion_with(None, true)
+    }
+
+    /// Finishes the last [`FeModel::free_motion_deferring_far`] into `dx`: its dofs outside
+    /// [`FeModel::is_deferral_exact`] are written so that `dx` is the whole solve of the free
+    /// motion's right-hand side plus the loads whose response (on those dofs, from
+    /// [`FeModel::solve_columns_near`]) was added to it; the exact dofs are left as they are.
+    ///
+    /// # Errors
+    /// No deferred free motion with the factor in use, or a wrong length.
+    pub fn complete_far(&mut self, dx: &mut [f64]) -> Result<(), FemError> {
+        check_vec("step", dx, self.dof_count())?;
+        self.sys.complete_far(dx)
+    }
+
+    /// [`FeModel::solve_columns`] on the dofs of [`FeModel::is_deferral_exact`] only (zero on
+    /// the others): for loads on those dofs, their exact rows at the cost of the near block.
+    ///
+    /// # Errors
+    /// No deferral, a wrong length, or no factorisation yet.
+    pub fn solve_columns_near(&mut self, rhs: &mut [f64], ncols: usize) -> Result<(), FemError> {
+        self.sys.solve_global_many_near(rhs, ncols)
+    }
+
+    /// Counts a step whose deferred free motion had to be finished before its constraint
+    /// solve (a gel point of its frame outside the dofs the deferred solves give exactly).
+    pub fn record_deferral_fallback(&mut self) {
+        self.deferral_fallbacks += 1;
+    }
+
+    /// Steps counted by [`FeModel::record_deferral_fallback`].
+    pub fn deferral_fallbacks(&self) -> u64 {
+        self.deferral_fallbacks
+    }
+
+    fn free_motion_with(&mut self, f_ext: Option<&[f64]>, defer: bool) -> Result<&[f64], FemError> {
         self.update_elements();
         // What `dx` holds was solved from this state's `f_int` unloaded; it is overwritten
         // below unless that solve is found to repeat.
@@ -499,7 +564,7 @@ impl<E: Elements> FeModel<E> {
         }
         self.sys.stage_refine(|v| elements.assemble(slots, v));
         let stamp = self.sys.factor_stamp();
-        if repeat_of == Some(stamp) && self.sys.refine.is_none() {
+        if repeat_of == Some((stamp, defer)) && self.sys.refine.is_none() {
             // The same right-hand side `−f_int` (the same positions) and the same factor:
             // the solve would repeat the last one bit for bit (a gel at rest in the air).
             self.unloaded_solve = repeat_of;
@@ -509,9 +574,13 @@ impl<E: Elements> FeModel<E> {
         for (i, (d, fi)) in self.dx.iter_mut().zip(&self.f_int).enumerate() {
             *d = f_ext.map_or(0.0, |f| f[i]) - fi;
         }
-        self.sys.solve_free_motion(&mut self.dx)?;
+        if defer {
+            self.sys.solve_free_motion_deferring_far(&mut self.dx)?;
+        } else {
+            self.sys.solve_free_motion(&mut self.dx)?;
+        }
         if f_ext.is_none() && E::STATE_OF_POSITIONS {
-            self.unloaded_solve = Some(stamp);
+            self.unloaded_solve = Some((stamp, defer));
         }
         Ok(&self.dx)
     }

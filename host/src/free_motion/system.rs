@@ -4,6 +4,7 @@
 
 use super::background::{Adopted, Background, FactorEvent, Job, LAG_ROTATION_LIMIT, RefreshParams};
 use crate::fem::FemError;
+use crate::linalg::LinalgError;
 use crate::linalg::{
     Cholesky, PcgOutcome, PcgWork, Precision, SymmetricMatrix, SymmetricPattern, TrailingBlock,
     nested_dissection_order, nested_dissection_order_with_last,
@@ -77,6 +78,8 @@ struct NearBlock {
     /// The free motion's far-residual tolerance (0: none) and the solves that dropped it.
     far_residual_tolerance: f64,
     far_drops: u64,
+    /// Where the deferred solves stop ([`Cholesky::deferral_split`]; `None`: no deferral).
+    split: Option<(usize, usize)>,
 }
 
 /// The entry block: the trailing part of the near block, around the path's entry point,
@@ -162,6 +165,9 @@ pub(super) struct SystemLayout<'a, I: Iterator<Item = (usize, usize)>, F: Fn() -
     /// With `near_dofs`: the free motion's far-residual tolerance
     /// ([`super::GelParams::far_residual_tolerance`]; 0: none).
     pub far_residual_tolerance: f64,
+    /// With `near_dofs` and the direct solve: defer the far rows of the free motion
+    /// ([`ReducedSystem::deferral`]).
+    pub defer_far: bool,
 }
 
 impl ReducedSystem {
@@ -240,6 +246,9 @@ impl ReducedSystem {
             .flatten()
             .map(|block| NearBlock {
                 far: far_dofs(&chol, block.first()),
+                split: (layout.defer_far && layout.pcg.is_none() && layout.refine.is_none())
+                    .then(|| chol.deferral_split(block.first()))
+                    .flatten(),
                 far_residual_tolerance: layout.far_residual_tolerance.max(0.0),
                 far_drops: 0,
                 block,
@@ -913,12 +922,19 @@ impl ReducedSystem {
     /// substitution skips every supernode before the block's (their rows stay zero), and the
     /// backward one is whole. Counted in [`Self::far_residual_drops`].
     pub fn solve_free_motion(&mut self, rhs: &mut [f64]) -> Result<(), FemError> {
+        self.drop_far_residual(rhs);
+        self.solve_global(rhs)
+    }
+
+    /// With a near block and a far-residual tolerance: zeroes the far entries of `rhs` when
+    /// their norm is at most the tolerance's share of the whole (counted).
+    fn drop_far_residual(&mut self, rhs: &mut [f64]) {
         let Some(near) = self
             .near
             .as_mut()
             .filter(|n| n.far_residual_tolerance > 0.0)
         else {
-            return self.solve_global(rhs);
+            return;
         };
         let (mut far2, mut all2) = (0.0, 0.0);
         for (&g, &far) in self.free.iter().zip(&near.far) {
@@ -938,7 +954,90 @@ impl ReducedSystem {
             }
             near.far_drops += 1;
         }
-        self.solve_global(rhs)
+    }
+
+    /// Where the deferred solves stop (see [`Cholesky::deferral_split`]): with a near block,
+    /// `GelParams::defer_far` and the direct solve; `None` otherwise.
+    pub fn deferral(&self) -> Option<(usize, usize)> {
+        self.near.as_ref().and_then(|n| n.split)
+    }
+
+    /// Whether global dof `g` is solved exactly by the deferred solves: a fixed dof, or a free
+    /// one eliminated from the split on. `false` without deferral.
+    pub fn is_deferral_exact(&self, g: usize) -> bool {
+        let Some(split) = self.deferral() else {
+            return false;
+        };
+        match self.dof_map.get(g) {
+            Some(&r) if r == SKIP => true,
+            Some(&r) => self.chol.is_after_split(r as usize, split),
+            None => false,
+        }
+    }
+
+    /// [`Self::solve_free_motion`] with its far rows deferred: `rhs` returns the solution on
+    /// the dofs solved from the split on and zero on the others, which
+    /// [`Self::complete_far`] finishes.
+    ///
+    /// # Errors
+    /// No deferral ([`Self::deferral`]), or the solve's.
+    pub fn solve_free_motion_deferring_far(&mut self, rhs: &mut [f64]) -> Result<(), FemError> {
+        let split = self
+            .deferral()
+            .ok_or(LinalgError::Deferred("no near block to defer to"))?;
+        self.drop_far_residual(rhs);
+        for (k, &g) in self.free.iter().enumerate() {
+            self.work[k] = rhs[g];
+        }
+        self.chol.solve_deferring_far(&mut self.work, split)?;
+        rhs.iter_mut().for_each(|v| *v = 0.0);
+        for (k, &g) in self.free.iter().enumerate() {
+            rhs[g] = self.work[k];
+        }
+        Ok(())
+    }
+
+    /// Finishes the last deferred free motion into `dx` (global dofs), whose exactly solved
+    /// dofs hold that free motion plus any response to loads on them alone (a corrective
+    /// motion): its other free dofs are written, the rest left as they are.
+    ///
+    /// # Errors
+    /// No deferral, a changed factor, or a wrong length.
+    pub fn complete_far(&mut self, dx: &mut [f64]) -> Result<(), FemError> {
+        let split = self
+            .deferral()
+            .ok_or(LinalgError::Deferred("no near block to defer to"))?;
+        if dx.len() != self.dof_map.len() {
+            return Err(FemError::DimensionMismatch {
+                what: "step",
+                expected: self.dof_map.len(),
+                got: dx.len(),
+            });
+        }
+        for (k, &g) in self.free.iter().enumerate() {
+            self.work[k] = dx[g];
+        }
+        self.chol.complete_far(&mut self.work, split)?;
+        for (k, &g) in self.free.iter().enumerate() {
+            dx[g] = self.work[k];
+        }
+        Ok(())
+    }
+
+    /// [`Self::solve_global_many`] on the dofs solved exactly from the split on (zero on the
+    /// others): exact there for loads there, at the cost of the factor's trailing part.
+    ///
+    /// # Errors
+    /// No deferral, or the solve's.
+    pub fn solve_global_many_near(
+        &mut self,
+        rhs: &mut [f64],
+        ncols: usize,
+    ) -> Result<(), FemError> {
+        let split = self
+            .deferral()
+            .ok_or(LinalgError::Deferred("no near block to defer to"))?;
+        self.solve_global_many_with(rhs, ncols, Some(split))
     }
 
     /// Free motions solved with their far residual dropped ([`Self::solve_free_motion`]).
@@ -961,6 +1060,15 @@ impl ReducedSystem {
 
     /// Solves `ncols` column-major global right-hand sides in place.
     pub fn solve_global_many(&mut self, rhs: &mut [f64], ncols: usize) -> Result<(), FemError> {
+        self.solve_global_many_with(rhs, ncols, None)
+    }
+
+    fn solve_global_many_with(
+        &mut self,
+        rhs: &mut [f64],
+        ncols: usize,
+        split: Option<(usize, usize)>,
+    ) -> Result<(), FemError> {
         let ndof = self.dof_map.len();
         if rhs.len() != ndof * ncols {
             return Err(FemError::DimensionMismatch {
@@ -980,7 +1088,10 @@ impl ReducedSystem {
                 buf[c * n + k] = rhs[c * ndof + g];
             }
         }
-        self.chol.solve_many_in_place(buf, ncols)?;
+        match split {
+            Some(split) => self.chol.solve_near_many(buf, ncols, split)?,
+            None => self.chol.solve_many_in_place(buf, ncols)?,
+        }
         rhs.iter_mut().for_each(|v| *v = 0.0);
         for c in 0..ncols {
             for (k, &g) in self.free.iter().enumerate() {

@@ -15,7 +15,9 @@
 
 use faer::dyn_stack::MemStack;
 use faer::linalg::matmul::matmul_with_conj;
-use faer::linalg::triangular_solve::solve_lower_triangular_in_place_with_conj;
+use faer::linalg::triangular_solve::{
+    solve_lower_triangular_in_place_with_conj, solve_upper_triangular_in_place_with_conj,
+};
 use faer::reborrow::{Reborrow, ReborrowMut};
 use faer::sparse::linalg::cholesky::supernodal::SupernodalLltRef;
 use faer::sparse::linalg::cholesky::{SymbolicCholesky, SymbolicCholeskyRaw};
@@ -27,16 +29,32 @@ pub(super) trait Real:
 {
     const ZERO: Self;
     const ONE: Self;
+    /// `v` rounded to this type.
+    fn from_f64(v: f64) -> Self;
+    /// Widened to `f64`.
+    fn to_f64(self) -> f64;
 }
 
 impl Real for f32 {
     const ZERO: Self = 0.0;
     const ONE: Self = 1.0;
+    fn from_f64(v: f64) -> Self {
+        v as f32
+    }
+    fn to_f64(self) -> f64 {
+        f64::from(self)
+    }
 }
 
 impl Real for f64 {
     const ZERO: Self = 0.0;
     const ONE: Self = 1.0;
+    fn from_f64(v: f64) -> Self {
+        v
+    }
+    fn to_f64(self) -> f64 {
+        self
+    }
 }
 
 /// Scratch of [`solve_in_place`]: the permuted right-hand sides and one supernode's update.
@@ -74,10 +92,115 @@ pub(super) fn solve_in_place<T: Real>(
     };
     let n = symbolic.nrows();
     let llt = SupernodalLltRef::new(sn, values);
+    let skipped = permuted_forward(&llt, symbolic, rhs, ncols, scratch);
+    let x = &mut scratch.x[..n * ncols];
+    // faer's backward loop, as its whole solve calls it (`Conj::Yes`: the transpose of a real
+    // factor).
+    let xm = MatMut::from_column_major_slice_mut(&mut *x, n, ncols);
+    llt.l_transpose_solve_with_conj(Conj::Yes, xm, Par::Seq, stack);
+    unpermute(symbolic, x, rhs, n, ncols);
+    Some(skipped)
+}
+
+/// The start of both solves: `P b` into the scratch, then the skipping forward substitution
+/// (the first `n × ncols` values of `scratch.x`). Returns how many supernodes it skipped.
+fn permuted_forward<T: Real>(
+    llt: &SupernodalLltRef<'_, usize, T>,
+    symbolic: &SymbolicCholesky<usize>,
+    rhs: &[T],
+    ncols: usize,
+    scratch: &mut Scratch<T>,
+) -> usize {
+    let n = symbolic.nrows();
     if scratch.x.len() < n * ncols {
         scratch.x.resize(n * ncols, T::ZERO);
     }
     let x = &mut scratch.x[..n * ncols];
+    permute(symbolic, rhs, x, n, ncols);
+    forward(llt, x, n, ncols, &mut scratch.tmp)
+}
+
+/// The deferred solve of [`solve_in_place`]'s kind for one right-hand side: the forward
+/// substitution whole (skipping), then the backward substitution over the supernodes from
+/// `split` on only (the rows eliminated last, from permuted row `split_row`). `keep` receives
+/// the permuted forward result `y`, whose rows before `split_row` [`complete_far`] needs;
+/// `rhs` returns the solution on the rows from `split_row` on (exact: the backward substitution
+/// reaches them first) and zero on the others. `None`, `rhs` untouched, for a simplicial factor.
+pub(super) fn solve_near_in_place<T: Real>(
+    symbolic: &SymbolicCholesky<usize>,
+    values: &[T],
+    rhs: &mut [T],
+    ncols: usize,
+    split: (usize, usize),
+    keep: Option<&mut Vec<T>>,
+    scratch: &mut Scratch<T>,
+) -> Option<usize> {
+    let SymbolicCholeskyRaw::Supernodal(sn) = symbolic.raw() else {
+        return None;
+    };
+    let n = symbolic.nrows();
+    let llt = SupernodalLltRef::new(sn, values);
+    let skipped = permuted_forward(&llt, symbolic, rhs, ncols, scratch);
+    let x = &mut scratch.x[..n * ncols];
+    if let Some(keep) = keep {
+        keep.clear();
+        keep.extend_from_slice(&x[..n]);
+    }
+    backward(
+        &llt,
+        x,
+        n,
+        ncols,
+        split.0..sn.n_supernodes(),
+        &mut scratch.tmp,
+    );
+    for j in 0..ncols {
+        x[j * n..][..split.1].fill(T::ZERO);
+    }
+    unpermute(symbolic, x, rhs, n, ncols);
+    Some(skipped)
+}
+
+/// The rest of a [`solve_near_in_place`] of one right-hand side: with `x` permuted, holding
+/// the kept forward result `y` on the rows before `split.1` and the solution (possibly
+/// changed since, e.g. by a corrective motion's own near rows) on the others, the backward
+/// substitution over the supernodes before `split.0`. Afterwards the rows before `split.1` of
+/// `x` hold the solution of the whole system for that right-hand side.
+pub(super) fn complete_far<T: Real>(
+    symbolic: &SymbolicCholesky<usize>,
+    values: &[T],
+    x: &mut [T],
+    split: (usize, usize),
+    scratch: &mut Scratch<T>,
+) -> Option<()> {
+    let SymbolicCholeskyRaw::Supernodal(sn) = symbolic.raw() else {
+        return None;
+    };
+    let n = symbolic.nrows();
+    let llt = SupernodalLltRef::new(sn, values);
+    backward(&llt, x, n, 1, 0..split.0, &mut scratch.tmp);
+    Some(())
+}
+
+/// The first supernode of a supernodal factor that reaches permuted column `first` and its
+/// first column: the backward substitution from that supernode on gives the solution on every
+/// row from that column on. `None` for a simplicial factor.
+pub(super) fn split_at(symbolic: &SymbolicCholesky<usize>, first: usize) -> Option<(usize, usize)> {
+    let SymbolicCholeskyRaw::Supernodal(sn) = symbolic.raw() else {
+        return None;
+    };
+    let s = (0..sn.n_supernodes()).find(|&s| sn.supernode_end()[s] > first)?;
+    Some((s, sn.supernode_begin()[s]))
+}
+
+/// `x ← P b` for `ncols` column-major columns.
+fn permute<T: Real>(
+    symbolic: &SymbolicCholesky<usize>,
+    rhs: &[T],
+    x: &mut [T],
+    n: usize,
+    ncols: usize,
+) {
     match symbolic.perm() {
         Some(perm) => {
             let fwd = perm.arrays().0;
@@ -88,13 +211,18 @@ pub(super) fn solve_in_place<T: Real>(
                 }
             }
         }
-        None => x.copy_from_slice(rhs),
+        None => x.copy_from_slice(&rhs[..n * ncols]),
     }
-    let skipped = forward(&llt, x, n, ncols, &mut scratch.tmp);
-    // faer's backward loop, as its whole solve calls it (`Conj::Yes`: the transpose of a real
-    // factor).
-    let xm = MatMut::from_column_major_slice_mut(x, n, ncols);
-    llt.l_transpose_solve_with_conj(Conj::Yes, xm, Par::Seq, stack);
+}
+
+/// `b ← Pᵀ x` for `ncols` column-major columns.
+fn unpermute<T: Real>(
+    symbolic: &SymbolicCholesky<usize>,
+    x: &[T],
+    rhs: &mut [T],
+    n: usize,
+    ncols: usize,
+) {
     match symbolic.perm() {
         Some(perm) => {
             let inv = perm.arrays().1;
@@ -105,9 +233,56 @@ pub(super) fn solve_in_place<T: Real>(
                 }
             }
         }
-        None => rhs.copy_from_slice(x),
+        None => rhs[..n * ncols].copy_from_slice(x),
     }
-    Some(skipped)
+}
+
+/// `Lᵀ x = y` in place over the permuted `x` for the supernodes of `range` only, last first,
+/// with the kernels of faer's backward loop (over every supernode: faer's loop).
+fn backward<T: Real>(
+    llt: &SupernodalLltRef<'_, usize, T>,
+    x: &mut [T],
+    n: usize,
+    ncols: usize,
+    range: core::ops::Range<usize>,
+    tmp: &mut Vec<T>,
+) {
+    for s in range.rev() {
+        let sup = llt.supernode(s);
+        let (start, pattern, ls) = (sup.start(), sup.pattern(), sup.val());
+        let size = ls.ncols();
+        let (ls_top, ls_bot) = ls.split_at_row(size);
+        let rows = pattern.len();
+        if tmp.len() < rows * ncols {
+            tmp.resize(rows * ncols, T::ZERO);
+        }
+        let t = &mut tmp[..rows * ncols];
+        for j in 0..ncols {
+            let xj = &x[j * n..][..n];
+            for (ti, &i) in t[j * rows..][..rows].iter_mut().zip(pattern) {
+                *ti = xj[i];
+            }
+        }
+        let xm = MatMut::from_column_major_slice_mut(&mut *x, n, ncols);
+        let mut x_top = xm.subrows_mut(start, size);
+        let tm = MatRef::from_column_major_slice(&*t, rows, ncols);
+        matmul_with_conj(
+            x_top.rb_mut(),
+            Accum::Add,
+            ls_bot.transpose(),
+            Conj::Yes,
+            tm,
+            Conj::No,
+            -T::ONE,
+            Par::Seq,
+        );
+        solve_upper_triangular_in_place_with_conj(
+            ls_top.transpose(),
+            Conj::Yes,
+            x_top.rb_mut(),
+            Par::Seq,
+        );
+    }
 }
 
 /// `L y = x` in place over the permuted `x` (`n` × `ncols`, column-major), supernode by
@@ -262,6 +437,109 @@ mod tests {
                 std::println!("{precision:?}, skips expected {expect_skips}: {skipped} skipped");
                 assert_eq!(skipped > 0, expect_skips, "{precision:?}");
             }
+        }
+    }
+
+    /// The deferred solve (`Cholesky::solve_deferring_far`) gives the whole solve's rows from
+    /// its split on bit for bit and zero before; finished unchanged it is the whole solve bit
+    /// for bit; finished after adding the near rows of a response to loads on those rows
+    /// (`Cholesky::solve_near_many`, itself the whole solve's rows bit for bit), it is the
+    /// solve of the summed load to round-off; a factor changed in between refuses to finish.
+    #[test]
+    fn deferred_far_rows_finish_into_the_whole_solve() {
+        let a = grid(12);
+        let n = a.pattern.n;
+        for precision in [Precision::Double, Precision::Single] {
+            let mut chol =
+                Cholesky::try_new_with_precision(&a.pattern, None, 6, precision).expect("symbolic");
+            chol.factorize(&a).expect("SPD");
+            let split = chol.deferral_split(n - 400).expect("supernodal");
+            assert!(split.1 <= n - 400 && split.1 > 0, "{split:?}");
+            let after: Vec<usize> = (0..n).filter(|&i| chol.is_after_split(i, split)).collect();
+            assert_eq!(after.len(), n - split.1);
+            let mut state = 11_u64;
+            let b: Vec<f64> = (0..n)
+                .map(|_| {
+                    state = state
+                        .wrapping_mul(6_364_136_223_846_793_005)
+                        .wrapping_add(1);
+                    (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+                })
+                .collect();
+            let mut whole = b.clone();
+            chol.solve_in_place(&mut whole).expect("solve");
+            let mut x = b.clone();
+            chol.solve_deferring_far(&mut x, split).expect("deferred");
+            for i in 0..n {
+                let expect = if chol.is_after_split(i, split) {
+                    whole[i]
+                } else {
+                    0.0
+                };
+                assert!(
+                    x[i] == expect,
+                    "{precision:?} row {i}: {} vs {expect}",
+                    x[i]
+                );
+            }
+            let mut unchanged = x.clone();
+            chol.complete_far(&mut unchanged, split).expect("finish");
+            assert!(
+                unchanged.iter().zip(&whole).all(|(u, w)| u == w),
+                "{precision:?}"
+            );
+            // A response to loads on three rows after the split, added on those rows only.
+            let mut r = vec![0.0; n * 3];
+            for (c, &i) in [after[5], after[200], after[399]].iter().enumerate() {
+                r[c * n + i] = 1.0 + c as f64;
+            }
+            let mut cols = r.clone();
+            chol.solve_near_many(&mut cols, 3, split)
+                .expect("near columns");
+            let mut full_cols = r.clone();
+            chol.solve_many_in_place(&mut full_cols, 3)
+                .expect("columns");
+            for c in 0..3 {
+                for i in 0..n {
+                    let expect = if chol.is_after_split(i, split) {
+                        full_cols[c * n + i]
+                    } else {
+                        0.0
+                    };
+                    assert!(
+                        cols[c * n + i] == expect,
+                        "{precision:?} column {c} row {i}"
+                    );
+                }
+            }
+            let f = [0.7, -1.3, 2.1];
+            let mut total = x.clone();
+            let mut load = b.clone();
+            for c in 0..3 {
+                for i in 0..n {
+                    total[i] += f[c] * cols[c * n + i];
+                    load[i] += f[c] * r[c * n + i];
+                }
+            }
+            chol.complete_far(&mut total, split).expect("finish");
+            chol.solve_in_place(&mut load).expect("solve");
+            let scale = load.iter().fold(0.0_f64, |m, v| m.max(v.abs()));
+            let err = total
+                .iter()
+                .zip(&load)
+                .fold(0.0_f64, |m, (u, v)| m.max((u - v).abs()));
+            let tol = match precision {
+                Precision::Double => 1e-13,
+                Precision::Single => 1e-5,
+            };
+            assert!(err <= tol * scale, "{precision:?}: {err:e} of {scale:e}");
+            // A new factor: nothing to finish.
+            chol.factorize(&a).expect("SPD");
+            let mut again = x.clone();
+            assert!(matches!(
+                chol.complete_far(&mut again, split),
+                Err(super::super::LinalgError::Deferred(_))
+            ));
         }
     }
 

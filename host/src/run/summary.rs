@@ -164,6 +164,11 @@ pub struct RunSummary {
     /// (`solver.far_residual_tolerance`; 0 without a near block).
     #[serde(default)]
     pub far_residual_drops: u64,
+    /// Steps whose gel far rows were deferred (`solver.defer_far`) but had to be solved
+    /// before the constraint solve, a gel point of the frame lying outside the near block's
+    /// exactly solved dofs (0 without deferral).
+    #[serde(default)]
+    pub deferral_fallbacks: u64,
     /// `solver.gel_solve = "pcg"` or `"refine"`: CG iterations per step solved (or refined)
     /// by CG, mean (0 with the direct solve).
     pub pcg_iterations_mean: f64,
@@ -413,6 +418,7 @@ impl Statistics {
             near_factorizations: world.gel.near_refactorizations(),
             entry_factorizations: world.gel.entry_refactorizations(),
             far_residual_drops: world.gel.far_residual_drops(),
+            deferral_fallbacks: world.gel.deferral_fallbacks(),
             pcg_iterations_mean: pcg.map_or(0.0, |p| {
                 if p.steps == 0 {
                     0.0

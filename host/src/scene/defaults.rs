@@ -137,6 +137,9 @@ pub(super) fn default_refresh_rotation() -> f64 {
 pub(super) fn default_far_residual_tolerance() -> f64 {
     1e-3
 }
+pub(super) fn default_defer_far() -> bool {
+    true
+}
 pub(super) fn default_factor_precision() -> FactorPrecisionSpec {
     FactorPrecisionSpec::Single
 }

@@ -572,6 +572,13 @@ pub struct SolverSpec {
     /// far residual exceeds it solves it whole. 0: every solve exact.
     #[serde(default = "default_far_residual_tolerance")]
     pub far_residual_tolerance: f64,
+    /// With a near block (`near_radius`) and the direct solve: the far rows of the gel's step
+    /// are solved once per step, after the constraint solve, for the free and the corrective
+    /// motion together; the free motion, the compliance columns and the corrective motion are
+    /// solved on the near block's rows only (a step whose constrained or observed gel points
+    /// reach outside them solves them whole, as with `false`). The same step to round-off.
+    #[serde(default = "default_defer_far")]
+    pub defer_far: bool,
 }
 
 /// The largest `solver.far_residual_tolerance`.
@@ -718,6 +725,7 @@ impl Default for SolverSpec {
             far_refresh_rotation: None,
             entry_radius: NearRadiusSpec::Auto,
             far_residual_tolerance: default_far_residual_tolerance(),
+            defer_far: default_defer_far(),
         }
     }
 }

@@ -312,6 +312,18 @@ fn factorisation_defaults_follow_the_mode() {
         assert_eq!(e.field, "solver.far_residual_tolerance", "{bad}");
         assert!(e.to_string().contains("every solve exact"), "{e}");
     }
+    assert!(s.solver.defer_far, "the default");
+    let whole = set(&[("solver.defer_far", "false")]).unwrap();
+    assert!(!whole.solver.defer_far);
+    assert!(
+        !crate::setup::gel_params(&whole).defer_far,
+        "reaches the gel model"
+    );
+    assert!(crate::setup::gel_params(&s).defer_far);
+    for bad in ["1", "\"yes\""] {
+        let e = set(&[("solver.defer_far", bad)]).unwrap_err();
+        assert_eq!(e.field, "solver.defer_far", "{bad}");
+    }
     for bad in ["\"sometimes\"", "true"] {
         let e = set(&[("solver.near_radius", bad)]).unwrap_err();
         assert!(e.to_string().contains("solver.near_radius"), "{bad}: {e}");

@@ -45,18 +45,28 @@ pub fn add_correction(
 }
 
 /// Moves both bodies to `x_free + K⁻¹ Hᵀ λ`: adds the correction to the free motions
-/// `needle_dx`, `gel_dx` and applies them.
+/// `needle_dx`, `gel_dx` and applies them. With `far_pending` (the gel's free motion and
+/// columns solved on its near dofs only), the gel's far dofs are then solved once for the
+/// free and the corrective motion together
+/// ([`crate::free_motion::FeModel::complete_far`]).
 ///
 /// # Errors
-/// [`SimError::NonFinite`] when a position is not finite afterwards.
+/// [`SimError::NonFinite`] when a position is not finite afterwards; the far rows' solve's.
 pub fn apply<const N: usize>(
     world: &mut World<N>,
     set: &ConstraintSet,
     lambda: &[f64],
     needle_dx: &mut [f64],
     gel_dx: &mut [f64],
+    far_pending: bool,
 ) -> Result<(), SimError> {
     add_correction(set, lambda, needle_dx, gel_dx);
+    if far_pending && gel_dx.iter().all(|v| v.is_finite()) {
+        world
+            .gel
+            .complete_far(gel_dx)
+            .map_err(SimError::in_free_motion(Body::Gel))?;
+    }
     // Refined-step mode: the gel's step to its own matrix (a no-op otherwise; a non-finite
     // step is left to the check below).
     if gel_dx.iter().all(|v| v.is_finite()) {

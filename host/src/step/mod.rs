@@ -35,7 +35,7 @@ pub mod rows;
 pub use correct::ConstraintForce;
 pub use params::{Insertion, Interaction, StepParams, TargetMotion};
 
-use crate::compliance::{NodeColumns, PointColumns};
+use crate::compliance::{NodeColumns, PointColumns, PointMap};
 use crate::constraints::{ConstraintSet, GroupRole, Model};
 use crate::error::{Body, CommandMismatch, NonFiniteAt, SimError};
 use crate::joints::{Joints, MAX_JOINTS, normalised_limit_margin};
@@ -161,6 +161,10 @@ pub struct Pipeline<const N: usize = 6> {
     contact_nodes: NodeColumns,
     /// The gel surface's projector for the tip's contact, kept while the gel does not move.
     surface: CachedProjector,
+    /// Whether this step's gel free motion has its far rows deferred
+    /// ([`crate::free_motion::FeModel::free_motion_deferring_far`]): `gel_dx` is exact on the
+    /// gel's near dofs only until the corrective motion finishes it.
+    far_pending: bool,
     /// The stage times of the last step.
     pub times: StageTimes,
 }
@@ -189,6 +193,7 @@ impl<const N: usize> Pipeline<N> {
             columns: Vec::new(),
             contact_nodes: NodeColumns::default(),
             surface: CachedProjector::default(),
+            far_pending: false,
             times: StageTimes::default(),
         }
     }
@@ -259,6 +264,27 @@ impl<const N: usize> Pipeline<N> {
             &mut self.columns,
             &mut self.surface,
         );
+        // With the gel's far rows deferred, every gel point of the frame must lie where the
+        // deferred solves are exact; otherwise the free motion is finished now and the rows
+        // built again from the whole free positions, the near-only columns dropped.
+        if self.far_pending && !self.frame_is_near(world, c) {
+            world
+                .gel
+                .complete_far(&mut self.gel_dx)
+                .map_err(SimError::in_free_motion(Body::Gel))?;
+            self.far_pending = false;
+            world.gel.record_deferral_fallback();
+            self.update_free_positions(world)?;
+            self.contact_nodes = NodeColumns::default();
+            rows::build(
+                &mut self.set,
+                world,
+                &self.free,
+                &params.interaction,
+                &mut Vec::new(),
+                &mut self.surface,
+            );
+        }
         let rows = self.set.rows();
         if rows > ROWS {
             return Err(SimError::Capacity {
@@ -288,7 +314,9 @@ impl<const N: usize> Pipeline<N> {
             lambda,
             &mut self.needle_dx,
             &mut self.gel_dx,
+            self.far_pending,
         )?;
+        self.far_pending = false;
         world.q = self.command.q;
         world.c = c;
         times.corr = lap(&mut t);
@@ -308,7 +336,12 @@ impl<const N: usize> Pipeline<N> {
     /// Stage 1: `Δx_free` of both bodies, the free positions, and the cached gel columns dropped
     /// when the gel's factor was renewed.
     fn free_motion(&mut self, world: &mut World<N>) -> Result<(), SimError> {
-        let gel_dx = world.gel.free_motion_unloaded();
+        self.far_pending = world.gel.defers_far();
+        let gel_dx = if self.far_pending {
+            world.gel.free_motion_deferring_far()
+        } else {
+            world.gel.free_motion_unloaded()
+        };
         self.gel_dx
             .copy_from_slice(gel_dx.map_err(SimError::in_free_motion(Body::Gel))?);
         let needle_dx = world.needle.free_motion_unloaded();
@@ -317,6 +350,29 @@ impl<const N: usize> Pipeline<N> {
         if world.gel.factor_age() == Some(0) {
             self.columns.clear();
         }
+        self.update_free_positions(world)
+    }
+
+    /// Whether every gel point this step's frame uses (the rows' points, the observed ones)
+    /// lies on dofs the deferred solves give exactly.
+    fn frame_is_near(&self, world: &World<N>, c: f64) -> bool {
+        let gel = &world.gel;
+        let near = |map: &PointMap| {
+            map.used()
+                .iter()
+                .all(|&(b, _)| (b..b + 3).all(|d| gel.is_deferral_exact(d)))
+        };
+        let observed = observe::observations(world, &self.free, c);
+        let clearances = observe::clearance_observations(world, &self.free);
+        self.set.gel.points.iter().all(|p| near(&p.map))
+            && (observed.iter())
+                .chain(clearances.iter().flat_map(|o| o.obstacle.iter()))
+                .filter(|o| o.model == Model::Gel)
+                .all(|o| near(&o.map))
+    }
+
+    /// The free positions of both bodies from the free motions, checked finite.
+    fn update_free_positions(&mut self, world: &World<N>) -> Result<(), SimError> {
         for (i, x) in world.gel.positions().iter().enumerate() {
             self.free.gel[i] = match world.gel.node_dof(i) {
                 Some(d) => x + Vector3::new(self.gel_dx[d], self.gel_dx[d + 1], self.gel_dx[d + 2]),
@@ -353,6 +409,9 @@ impl<const N: usize> Pipeline<N> {
             .compute_missing(nn, |r, k| needle.solve_columns(r, k))
             .map_err(SimError::in_compliance(Body::Needle))?;
         let gel = &mut world.gel;
+        // With the far rows deferred, the gel's columns on its near dofs only (all the frame
+        // reads of them; the corrective motion's far rows come with the free motion's).
+        let near = self.far_pending;
         // The contact point's weights change every step: its columns are sums of its nodes'.
         let contact = (self.set.groups.iter())
             .filter(|g| g.role == GroupRole::Contact)
@@ -364,13 +423,13 @@ impl<const N: usize> Pipeline<N> {
             let stamp = gel.factor_stamp();
             let (cols, _) = self
                 .contact_nodes
-                .point(&map, ng, stamp, |r, k| gel.solve_columns(r, k))
+                .point(&map, ng, stamp, |r, k| solve_gel(gel, near, r, k))
                 .map_err(SimError::in_compliance(Body::Gel))?;
             self.set.gel.points[p].cols = Some(cols);
         }
         self.set
             .gel
-            .compute_missing(ng, |r, k| gel.solve_columns(r, k))
+            .compute_missing(ng, |r, k| solve_gel(gel, near, r, k))
             .map_err(SimError::in_compliance(Body::Gel))?;
         let observations = observe::observations(world, &self.free, c);
         self.set.fill_frame(&observations, &mut self.frame);
@@ -445,6 +504,21 @@ impl<const N: usize> Pipeline<N> {
 }
 
 /// The core's report of an `N`-joint step with room for [`MAX_JOINTS`] joints.
+/// The gel's compliance columns for `ncols` right-hand sides: on the near dofs only when
+/// `near` (the far rows deferred), else whole.
+fn solve_gel(
+    gel: &mut crate::free_motion::GelModel,
+    near: bool,
+    rhs: &mut [f64],
+    ncols: usize,
+) -> Result<(), crate::fem::FemError> {
+    if near {
+        gel.solve_columns_near(rhs, ncols)
+    } else {
+        gel.solve_columns(rhs, ncols)
+    }
+}
+
 fn widen_report<const N: usize>(r: &SolverReport<N>) -> SolverReport<MAX_JOINTS> {
     let mut delta_q = [0.0; MAX_JOINTS];
     for (d, v) in delta_q.iter_mut().zip(&r.delta_q) {
