@@ -165,6 +165,11 @@ pub struct Pipeline<const N: usize = 6> {
     /// ([`crate::free_motion::FeModel::free_motion_deferring_far`]): `gel_dx` is exact on the
     /// gel's near dofs only until the corrective motion finishes it.
     far_pending: bool,
+    /// Whether the next step defers the gel's far rows: every gel point of the last frame lay
+    /// on the near rows (a frame that reads a far point, e.g. an obstacle observed outside the
+    /// near block, keeps the steps after it whole, and their columns cached, until one does
+    /// not).
+    defer_next: bool,
     /// The stage times of the last step.
     pub times: StageTimes,
 }
@@ -194,6 +199,7 @@ impl<const N: usize> Pipeline<N> {
             contact_nodes: NodeColumns::default(),
             surface: CachedProjector::default(),
             far_pending: false,
+            defer_next: true,
             times: StageTimes::default(),
         }
     }
@@ -266,8 +272,11 @@ impl<const N: usize> Pipeline<N> {
         );
         // With the gel's far rows deferred, every gel point of the frame must lie where the
         // deferred solves are exact; otherwise the free motion is finished now and the rows
-        // built again from the whole free positions, the near-only columns dropped.
-        if self.far_pending && !self.frame_is_near(world, c) {
+        // built again from the whole free positions, the near-only columns dropped, and the
+        // next steps solve whole until a frame lies on the near rows again.
+        let near = !world.gel.defers_far() || self.frame_is_near(world, c);
+        self.defer_next = near;
+        if self.far_pending && !near {
             world
                 .gel
                 .complete_far(&mut self.gel_dx)
@@ -336,7 +345,7 @@ impl<const N: usize> Pipeline<N> {
     /// Stage 1: `Δx_free` of both bodies, the free positions, and the cached gel columns dropped
     /// when the gel's factor was renewed.
     fn free_motion(&mut self, world: &mut World<N>) -> Result<(), SimError> {
-        self.far_pending = world.gel.defers_far();
+        self.far_pending = world.gel.defers_far() && self.defer_next;
         let gel_dx = if self.far_pending {
             world.gel.free_motion_deferring_far()
         } else {
