@@ -345,12 +345,15 @@ fn print_text(s: &RunSummary) {
         }
     );
     println!(
-        "tracking error inside the gel: mean {} mm, max {} mm, final (to the path's end) {:.3} mm (depth {:.1} mm, puncture at step {})",
+        "tracking error inside the gel: mean {} mm, max {} mm, final (to the path's end) {:.3} mm (depth {:.1} mm, puncture at step {}{})",
         mm3(s.e_mean_mm),
         mm3(s.e_max_mm),
         s.e_final_mm,
         s.final_depth_mm,
-        s.puncture_step.map_or("—".to_string(), |k| k.to_string())
+        s.puncture_step.map_or("—".to_string(), |k| k.to_string()),
+        s.e_puncture_mm.map_or(String::new(), |e| format!(
+            ", {e:.3} mm from its target on the indented surface"
+        ))
     );
     println!(
         "outcome: {} · distance to the path's end {:.3} mm (last step's error {:.3} mm) · reached within 1 mm at step {} of {} nominal · path deviation mean {} mm, max {} mm",

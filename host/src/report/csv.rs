@@ -6,7 +6,7 @@ use crate::run::RunSummary;
 use std::path::Path;
 
 /// The columns of `runs.csv`.
-const RUNS_HEADER: [&str; 47] = [
+const RUNS_HEADER: [&str; 48] = [
     "run",
     "scene",
     "controller",
@@ -25,6 +25,7 @@ const RUNS_HEADER: [&str; 47] = [
     "e_mean_mm",
     "e_max_mm",
     "e_final_mm",
+    "e_puncture_mm",
     "path_deviation_mean_mm",
     "path_deviation_max_mm",
     "steps_to_target",
@@ -78,6 +79,7 @@ fn summary_fields(r: &ReportRun, s: &RunSummary) -> Vec<String> {
         n(s.e_mean_mm),
         n(s.e_max_mm),
         n(s.e_final_mm),
+        s.e_puncture_mm.map_or(String::new(), n),
         n(s.path_deviation_mean_mm),
         n(s.path_deviation_max_mm),
         s.steps_to_target.map_or(String::new(), |k| k.to_string()),

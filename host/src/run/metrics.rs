@@ -144,7 +144,7 @@ impl PathMetrics {
         if self.e_end <= REACH_TOLERANCE_MM && self.steps_to_target.is_none() {
             self.steps_to_target = Some(r.step + 1);
         }
-        if !r.inserted {
+        if !r.tip_inside() {
             return;
         }
         if self.embedded.is_none() {

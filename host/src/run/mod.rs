@@ -499,7 +499,7 @@ pub fn run_setup_until<const N: usize>(
     );
     let error_by_depth = reports
         .iter()
-        .filter(|r| r.inserted)
+        .filter(|r| r.tip_inside())
         .map(|r| (r.depth, r.error))
         .collect();
     Ok(RunResult {

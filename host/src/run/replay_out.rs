@@ -135,7 +135,8 @@ impl<const N: usize> Observer<N> for ReplayRecorder {
         let e = &mut self.data.error;
         e.steps.push(u32::try_from(r.step).unwrap_or(u32::MAX));
         e.depth.push(r.depth);
-        e.error.push(if r.inserted { r.error } else { f64::NAN });
+        e.error
+            .push(if r.tip_inside() { r.error } else { f64::NAN });
         let frame = self.frame(world, r.step + 1, r.target)?;
         if (r.step + 1).is_multiple_of(self.every) {
             self.data.frames.push(frame);

@@ -96,10 +96,16 @@ pub struct RunSummary {
     pub stop_reason: Option<StopReason>,
     /// Step at which the tip punctured the surface.
     pub puncture_step: Option<usize>,
-    /// Mean tracking error over the steps with the tip inside the gel [mm].
+    /// Mean tracking error over the steps with the tip inside the gel
+    /// ([`StepReport::tip_inside`]) [mm].
     pub e_mean_mm: f64,
     /// Largest tracking error inside the gel [mm].
     pub e_max_mm: f64,
+    /// Largest tracking error of a step that punctured the surface [mm] (`None`: no
+    /// puncture): the tip on the surface it indented against the embedded target, which the
+    /// gel, not yet relaxed around the tip, still carries down with the indentation. Not a step
+    /// with the tip inside the gel, so not in `e_mean_mm` and `e_max_mm`.
+    pub e_puncture_mm: Option<f64>,
     /// Distance from the tip to the path's end point (deformed with the gel) after the last
     /// step [mm] — not the last step's target.
     pub e_final_mm: f64,
@@ -316,7 +322,7 @@ impl Statistics {
         end: Ending<'_>,
     ) -> RunSummary {
         let reports = end.reports;
-        let inside: Vec<&StepReport> = reports.iter().filter(|r| r.inserted).collect();
+        let inside: Vec<&StepReport> = reports.iter().filter(|r| r.tip_inside()).collect();
         let e_mean = if inside.is_empty() {
             f64::NAN
         } else {
@@ -369,6 +375,11 @@ impl Statistics {
             puncture_step: reports.iter().find(|r| r.punctured_now).map(|r| r.step),
             e_mean_mm: e_mean,
             e_max_mm: inside.iter().map(|r| r.error).fold(f64::NAN, f64::max),
+            e_puncture_mm: reports
+                .iter()
+                .filter(|r| r.punctured_now)
+                .map(|r| r.error)
+                .reduce(f64::max),
             e_final_mm: if reports.is_empty() {
                 f64::NAN
             } else {

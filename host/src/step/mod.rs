@@ -129,6 +129,29 @@ pub struct StepReport {
     pub needle_node_forces: Vec<Vector3<f64>>,
 }
 
+impl StepReport {
+    /// Whether the step's configuration has the tip inside the gel: inserted during the step
+    /// and still after it. The step that punctures the surface (`punctured_now`) is not: its
+    /// corrective motion was that of the tip contact, so it ends with the tip on the indented
+    /// surface, at depth 0, and the tip enters the gel during the next step. Its `error` is
+    /// measured against the embedded target all the same (the gel not yet relaxed around the
+    /// tip): [`crate::run::RunSummary::e_puncture_mm`]. The tracking metrics inside the gel
+    /// (e_mean, e_max, the path deviation, the error against depth) count these steps.
+    ///
+    /// # Example
+    /// ```
+    /// use needle_host::step::StepReport;
+    ///
+    /// let punctures = StepReport { inserted: true, punctured_now: true, ..StepReport::default() };
+    /// let inside = StepReport { inserted: true, ..StepReport::default() };
+    /// assert!(!punctures.tip_inside() && inside.tip_inside());
+    /// assert!(!StepReport::default().tip_inside());
+    /// ```
+    pub fn tip_inside(&self) -> bool {
+        self.inserted && !self.punctured_now
+    }
+}
+
 /// Positions after free motion: `x + Δx_free` of every node [mm].
 #[derive(Clone, Debug, Default)]
 pub struct FreePositions {

@@ -264,13 +264,14 @@ fn worst_of(rows: &[&SuiteRow]) -> Vec<String> {
     ]
 }
 
-const HEADER: [&str; 14] = [
+const HEADER: [&str; 15] = [
     "scene",
     "controller",
     "outcome",
     "e_mean_mm",
     "e_max_mm",
     "e_final_mm",
+    "e_puncture_mm",
     "path_dev_mean_mm",
     "path_dev_max_mm",
     "min_clearance_mm",
@@ -295,6 +296,7 @@ fn cells(r: &SuiteRow) -> Vec<String> {
         cell(s.e_mean_mm, 3),
         cell(s.e_max_mm, 3),
         cell(s.e_final_mm, 3),
+        cell(s.e_puncture_mm.unwrap_or(f64::NAN), 3),
         cell(s.path_deviation_mean_mm, 3),
         cell(s.path_deviation_max_mm, 3),
         cell(s.min_clearance_mm, 3),
