@@ -287,6 +287,7 @@ pub fn gel_params(scene: &Scene) -> GelParams {
         kinematics: Kinematics::Corotational,
         refactor_every: scene.solver.refactor_every() as usize,
         background_factorization: scene.solver.background_factorization,
+        asynchronous_factor: scene.solver.asynchronous_factor,
         pcg: (scene.solver.gel_solve == GelSolveSpec::Pcg).then_some(PcgParams {
             tolerance: scene.solver.pcg_tolerance,
             max_iterations: scene.solver.pcg_max_iterations as usize,

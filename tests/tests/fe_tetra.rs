@@ -1179,3 +1179,120 @@ fn a_gel_at_rest_repeats_its_free_motion_without_a_solve() {
     model.free_motion(&zero).unwrap();
     assert_eq!(model.repeated_free_motions(), 20);
 }
+
+/// `asynchronous_factor`: a due factor is put in use by the first step that finds it finished,
+/// and no step waits for it. Whatever the timing, every step solves with the matrix of an
+/// earlier step at least `refactor_every` steps old (or its own, when it factorises at once),
+/// and the equilibrium is the current matrix's. With the worker given time between the steps
+/// (its factorisation of this box takes far less than the pause), the adoptions are the
+/// synchronous pipeline's, step for step.
+#[test]
+fn asynchronous_factor_is_adopted_once_finished_and_never_waited_for() {
+    for (every, pause_ms) in [(1, 0), (2, 0), (3, 0), (1, 40), (2, 40)] {
+        let (mesh, bottom, params) = background_box();
+        let async_params = GelParams {
+            background_factorization: true,
+            asynchronous_factor: true,
+            refactor_every: every,
+            ..params.clone()
+        };
+        let sync_params = GelParams {
+            asynchronous_factor: false,
+            ..async_params.clone()
+        };
+        let mut model = GelModel::try_new(mesh.clone(), &bottom, &async_params).unwrap();
+        let mut by_hand = GelModel::try_new(mesh, &bottom, &params).unwrap();
+        let f = gravity_like_load(&model, -4e-3);
+        let mut history: Vec<Vec<Vector3<f64>>> = Vec::new();
+        let (mut ages, mut at_once) = (Vec::new(), Vec::new());
+        for k in 0..14 {
+            if pause_ms > 0 {
+                std::thread::sleep(std::time::Duration::from_millis(pause_ms));
+            }
+            let x = model.positions().to_vec();
+            history.push(x.clone());
+            let before = model.background_counts().map_or(0, |c| c.1);
+            let dx = model.free_motion(&f).unwrap().to_vec();
+            if model.background_counts().map_or(0, |c| c.1) > before {
+                at_once.push(k);
+            }
+            ages.push(model.factor_age().unwrap());
+            // The factor in use was made from the matrix of some step j: one that factorised
+            // at once (this one or an earlier one), or one at least `every` steps before.
+            let sources: Vec<usize> = (0..=k)
+                .filter(|&j| at_once.contains(&j) || j + every <= k)
+                .collect();
+            let found = sources.iter().any(|&j| {
+                let (err, scale) =
+                    off_the_step_with_matrix_of(&mut by_hand, &history[j], &x, &f, &dx);
+                err <= 1e-10 * scale
+            });
+            assert!(
+                found,
+                "every {every}, pause {pause_ms} ms, step {k}: the free motion is the step with no earlier matrix"
+            );
+            model.apply_displacement(&dx).unwrap();
+        }
+        let (adopted, immediate) = model.background_counts().unwrap();
+        println!("every {every}, pause {pause_ms} ms: factor ages {ages:?}, {adopted} adopted");
+        assert!(immediate >= 1, "the first step factorises at once");
+        assert!(adopted >= 1, "no factor was adopted");
+        if pause_ms > 0 {
+            // The synchronous pipeline on the same positions: the same ages.
+            let (mesh, bottom, _) = background_box();
+            let mut sync = GelModel::try_new(mesh, &bottom, &sync_params).unwrap();
+            let mut sync_ages = Vec::new();
+            for x in &history {
+                sync.positions_mut().copy_from_slice(x);
+                sync.free_motion(&f).unwrap();
+                sync_ages.push(sync.factor_age().unwrap());
+            }
+            assert_eq!(
+                ages, sync_ages,
+                "every {every}: the adoptions of a pipeline with time to spare"
+            );
+            assert_eq!(immediate, 1, "the first step only");
+        }
+        same_equilibrium(&mut model, &f, &params);
+    }
+}
+
+/// `asynchronous_factor` on a box whose factorisation (≈ 12 000 dofs) takes many times a step:
+/// the due factor is not finished when due, the steps go on with the factor in use instead of
+/// waiting (its age passes the pipeline's depth), and the factor is put in use once finished.
+#[test]
+fn asynchronous_factor_lets_the_steps_go_on_while_the_worker_is_busy() {
+    let (mesh, bottom) = needle_tests::clamped_box(BoxDivisions {
+        nx: 24,
+        ny: 12,
+        nz: 12,
+    });
+    let params = GelParams {
+        time_step: Some(0.05),
+        density: 1e-8,
+        background_factorization: true,
+        asynchronous_factor: true,
+        refactor_every: 1,
+        ..GelParams::default()
+    };
+    let mut model = GelModel::try_new(mesh, &bottom, &params).unwrap();
+    // The small box's load spread over about 38 times as many nodes.
+    let f = gravity_like_load(&model, -1e-4);
+    let mut ages = Vec::new();
+    for _ in 0..40 {
+        let dx = model.free_motion(&f).unwrap().to_vec();
+        ages.push(model.factor_age().unwrap());
+        model.apply_displacement(&dx).unwrap();
+        if model.background_counts().is_some_and(|c| c.0 >= 2) {
+            break;
+        }
+    }
+    let (adopted, immediate) = model.background_counts().unwrap();
+    println!("factor ages {ages:?}; {adopted} adopted, {immediate} at once");
+    assert_eq!(immediate, 1, "the first step only");
+    assert!(adopted >= 1, "no factor was put in use: {ages:?}");
+    assert!(
+        ages.iter().any(|&a| a > 1),
+        "every factor was in use one step after its matrix: the steps waited? {ages:?}"
+    );
+}

@@ -89,6 +89,8 @@ pub(super) struct Background {
     pub in_flight_steps: usize,
     /// The precision fallbacks of the job in flight's factor when it was sent.
     sent_fallbacks: u64,
+    /// The job in flight, received finished by [`Self::is_finished`] and not yet taken.
+    finished: Option<Box<Job>>,
 }
 
 impl std::fmt::Debug for Background {
@@ -140,6 +142,7 @@ impl Background {
             immediate: 0,
             in_flight_steps: 0,
             sent_fallbacks: 0,
+            finished: None,
         })
     }
 
@@ -160,6 +163,9 @@ impl Background {
         if self.spare.is_some() {
             return Ok(None);
         }
+        if let Some(job) = self.finished.take() {
+            return Ok(Some(job));
+        }
         self.done
             .recv()
             .map(Some)
@@ -174,11 +180,26 @@ impl Background {
         if self.spare.is_some() {
             return Ok(None);
         }
+        if let Some(job) = self.finished.take() {
+            return Ok(Some(job));
+        }
         match self.done.try_recv() {
             Ok(job) => Ok(Some(job)),
             Err(TryRecvError::Empty) => Ok(None),
             Err(TryRecvError::Disconnected) => Err(FemError::WorkerStopped),
         }
+    }
+
+    /// Whether the job in flight has finished, without waiting (it is kept for
+    /// [`Self::finish`] or [`Self::poll`]); `false` when no job is in flight.
+    ///
+    /// # Errors
+    /// [`FemError::WorkerStopped`] if the worker is gone.
+    pub fn is_finished(&mut self) -> Result<bool, FemError> {
+        if self.finished.is_none() {
+            self.finished = self.poll()?;
+        }
+        Ok(self.finished.is_some())
     }
 
     /// Sends `job` to the worker.

@@ -38,6 +38,13 @@ pub struct GelParams {
     /// Factorise on a second thread while the steps go on, and use the factor `refactor_every`
     /// steps later (see the module docs).
     pub background_factorization: bool,
+    /// With the background factorisation and the direct (or refined) solve: a due factor is
+    /// put in use at the first step, from `refactor_every` steps after its matrix, that finds it
+    /// finished, instead of the step waiting for it. No step waits for the worker (but for the
+    /// first step, a requested refactorisation and the rotation guard's factorisations at
+    /// once); which step adopts a factor then depends on the machine's timing, so runs no longer
+    /// repeat bit for bit.
+    pub asynchronous_factor: bool,
     /// Preconditioned-CG free motion: each step solves its own matrix by CG with the factor
     /// in use (refreshed every `refactor_every` steps at most, in the background when
     /// `background_factorization`) as preconditioner; `None`: the direct solve with the factor
@@ -97,6 +104,7 @@ impl Default for GelParams {
             kinematics: Kinematics::Corotational,
             refactor_every: 1,
             background_factorization: false,
+            asynchronous_factor: false,
             pcg: None,
             refine: None,
             refresh: None,
@@ -283,6 +291,7 @@ impl FeModel<Tets> {
                 refactor_every: params.refactor_every,
                 dof_coords: nd,
                 background: params.background_factorization,
+                asynchronous: params.asynchronous_factor,
                 pcg: params.pcg,
                 refine: params.refine.filter(|_| params.pcg.is_none()),
                 refresh: params.refresh.filter(|_| params.pcg.is_none()),

@@ -173,6 +173,8 @@ struct ModelLayout<'a> {
     refactor_every: usize,
     dof_coords: Option<&'a [[f64; 3]]>,
     background: bool,
+    /// [`GelParams::asynchronous_factor`].
+    asynchronous: bool,
     pcg: Option<PcgParams>,
     refine: Option<PcgParams>,
     refresh: Option<RefreshParams>,
@@ -220,6 +222,7 @@ impl<E: Elements> FeModel<E> {
             refactor_every: layout.refactor_every,
             dof_coords: layout.dof_coords,
             background: layout.background,
+            asynchronous: layout.asynchronous,
             pcg: layout.pcg,
             refine: layout.refine,
             refresh: layout.refresh,

@@ -152,6 +152,7 @@ impl FeModel<Beams> {
                 refactor_every: params.refactor_every,
                 dof_coords: None,
                 background: false,
+                asynchronous: false,
                 pcg: None,
                 refine: None,
                 refresh: None,

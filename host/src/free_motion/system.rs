@@ -34,6 +34,8 @@ pub(super) struct ReducedSystem {
     /// never factorised).
     matrix_age: Option<usize>,
     refactor_every: usize,
+    /// Background mode: a due factor is put in use once finished, never waited for.
+    asynchronous: bool,
     /// Background mode: the adaptive refresh (`None`: a matrix is sent whenever the worker is
     /// idle).
     refresh: Option<RefreshParams>,
@@ -151,6 +153,9 @@ pub(super) struct SystemLayout<'a, I: Iterator<Item = (usize, usize)>, F: Fn() -
     pub refactor_every: usize,
     pub dof_coords: Option<&'a [[f64; 3]]>,
     pub background: bool,
+    /// Background mode: adopt a due factor once it is finished, never waiting for it
+    /// ([`super::GelParams::asynchronous_factor`]).
+    pub asynchronous: bool,
     pub pcg: Option<PcgParams>,
     pub refine: Option<PcgParams>,
     pub refresh: Option<RefreshParams>,
@@ -300,6 +305,7 @@ impl ReducedSystem {
                 factor_age: None,
                 matrix_age: None,
                 refactor_every: layout.refactor_every.max(1),
+                asynchronous: layout.asynchronous,
                 refresh: layout.refresh,
                 refactor_requested: false,
                 background,
@@ -374,6 +380,10 @@ impl ReducedSystem {
         }
         bg.in_flight_steps += 1;
         if bg.in_flight_steps < every {
+            return Ok(Adopted::Idle);
+        }
+        // Asynchronous: a job not finished yet stays in flight; the step goes on without it.
+        if self.asynchronous && !bg.is_finished()? {
             return Ok(Adopted::Idle);
         }
         let Some(job) = bg.finish()? else {
@@ -474,22 +484,27 @@ impl ReducedSystem {
         write: impl Fn(&mut [f64]),
     ) -> Result<FactorEvent, FemError> {
         let mut event = FactorEvent::default();
-        let Some(bg) = self.background.as_ref() else {
+        let Some(bg) = self.background.as_mut() else {
             return Ok(event);
         };
         // A job in flight is due after `refactor_every` steps (1: the step after its
-        // matrix). Assemble this step's matrix first when it will be sent (no job in flight
-        // after this step's adoption): that overlaps the tail of the running factorisation.
-        let due = bg.spare.is_none() && bg.in_flight_steps + 1 >= self.refactor_every;
+        // matrix); asynchronous, once it is also finished. Assemble this step's matrix first
+        // when it will be sent (no job in flight after this step's adoption): that overlaps
+        // the tail of the running factorisation.
+        let mut due = bg.spare.is_none() && bg.in_flight_steps + 1 >= self.refactor_every;
+        if due && self.asynchronous {
+            due = bg.is_finished()?;
+        }
+        let (idle, in_flight_steps) = (bg.spare.is_some(), bg.in_flight_steps);
         let lag = lag(due);
         // The age of the matrix in use once the due job (if any) is in use.
         let matrix_age = if due {
-            Some(self.refactor_every)
+            Some(in_flight_steps + 1)
         } else {
             self.matrix_age.map(|a| a + 1)
         };
         let wanted = self.refresh_wanted(lag, matrix_age);
-        let idle_after = bg.spare.is_some() || due;
+        let idle_after = idle || due;
         let will_submit = idle_after && wanted;
         if will_submit {
             self.stage_background(&write);

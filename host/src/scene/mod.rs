@@ -505,6 +505,14 @@ pub struct SolverSpec {
     /// `refactor_every` steps later (the Newton matrix is then a few steps old).
     #[serde(default = "default_background")]
     pub background_factorization: bool,
+    /// With `background_factorization` and `gel_solve = "direct"` or `"refine"`: a due factor
+    /// is put in use by the first step, from `refactor_every` steps after its matrix, that
+    /// finds it finished, and no step waits for it (the first step, a requested refactorisation
+    /// and the rotation guard's factorisations at once excepted). For a loop with a deadline:
+    /// which step adopts a factor then follows the machine's timing, so runs no longer repeat
+    /// bit for bit. Default `false`: the step waits for its due factor.
+    #[serde(default)]
+    pub asynchronous_factor: bool,
     /// How the gel's free motion solves its Newton system: `"direct"` with the factor
     /// (refreshed as `refactor_every` and `background_factorization` say), or `"pcg"`:
     /// conjugate gradients on each step's own matrix, preconditioned by the factor in use,
@@ -715,6 +723,7 @@ impl Default for SolverSpec {
             time_step: default_h(),
             refactor_every: None,
             background_factorization: default_background(),
+            asynchronous_factor: false,
             gel_solve: default_gel_solve(),
             pcg_tolerance: default_pcg_tolerance(),
             pcg_max_iterations: default_pcg_max_iterations(),

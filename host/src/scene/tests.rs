@@ -324,6 +324,20 @@ fn factorisation_defaults_follow_the_mode() {
         let e = set(&[("solver.defer_far", bad)]).unwrap_err();
         assert_eq!(e.field, "solver.defer_far", "{bad}");
     }
+    assert!(
+        !s.solver.asynchronous_factor,
+        "the default: runs repeat bit for bit"
+    );
+    assert!(!crate::setup::gel_params(&s).asynchronous_factor);
+    let asynchronous = set(&[("solver.asynchronous_factor", "true")]).unwrap();
+    assert!(
+        crate::setup::gel_params(&asynchronous).asynchronous_factor,
+        "reaches the gel model"
+    );
+    for bad in ["1", "\"never\""] {
+        let e = set(&[("solver.asynchronous_factor", bad)]).unwrap_err();
+        assert_eq!(e.field, "solver.asynchronous_factor", "{bad}");
+    }
     for bad in ["\"sometimes\"", "true"] {
         let e = set(&[("solver.near_radius", bad)]).unwrap_err();
         assert!(e.to_string().contains("solver.near_radius"), "{bad}: {e}");
