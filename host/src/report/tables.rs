@@ -89,10 +89,10 @@ fn paper_figures(md: &mut String) {
 
 /// The columns of a group's table after `scene | controller | parameter`.
 const COLUMNS: &str = " nodes | steps | completed | e_mean [mm] | e_max [mm] | final [mm] | \
-     min clearance [mm] | step median [ms] | step p99 [ms] | step mean [ms] | \
+     at puncture [mm] | min clearance [mm] | step median [ms] | step p99 [ms] | step mean [ms] | \
      CPU per step [ms] | FM | CD | CC | SC | corr | GS sweeps |";
 /// How many of [`COLUMNS`] there are.
-const COLUMN_COUNT: usize = 17;
+const COLUMN_COUNT: usize = 18;
 
 /// The table of one group (nothing when no run belongs to it), with the notes on the runs that
 /// did not complete.
@@ -160,6 +160,11 @@ fn group_table(md: &mut String, s: &ReportSummary, g: Group) {
     if !notes.is_empty() {
         let _ = writeln!(md);
     }
+    let _ = writeln!(
+        md,
+        "e_mean, e_max: over the steps with the tip inside the gel; at puncture: the error of \
+         the step that punctured the surface, the tip still on the surface it indented.\n"
+    );
     if mesh {
         let _ = writeln!(
             md,
@@ -186,13 +191,14 @@ fn summary_cells(md: &mut String, r: &ReportRun, sm: &RunSummary, notes: &mut Ve
     });
     let _ = write!(
         md,
-        " {} | {}/{} | {completed} | {} | {} | {} | {clearance} |",
+        " {} | {}/{} | {completed} | {} | {} | {} | {} | {clearance} |",
         sm.gel_nodes,
         sm.steps,
         sm.steps_planned,
         fmt_f(sm.e_mean_mm, 3),
         fmt_f(sm.e_max_mm, 3),
         fmt_f(sm.e_final_mm, 3),
+        fmt_f(sm.e_puncture_mm.unwrap_or(f64::NAN), 3),
     );
     for x in [
         t.total.median_ms,
