@@ -183,6 +183,7 @@ fn summary_rows(s: &RunSummary) -> Vec<(String, String)> {
             "puncture at step",
             s.puncture_step.map_or("—".to_owned(), |k| k.to_string()),
         ),
+        ("e at puncture", s.e_puncture_mm.map_or("—".to_owned(), mm)),
         (
             "time per step",
             format!(
