@@ -316,6 +316,12 @@ fn print_summary(s: &RunSummary, json: bool) -> ExitCode {
             s.holds, s.held_ms
         );
     }
+    if s.period_overruns > 0 {
+        println!(
+            "{} step(s) started late: the step before took longer than the period (up to {:.0} ms late; a step that waits for the gel's background factor does not with `solver.asynchronous_factor = true`)",
+            s.period_overruns, s.period_overrun_max_ms
+        );
+    }
     ExitCode::from(s.outcome.exit_code())
 }
 

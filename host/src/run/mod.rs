@@ -482,6 +482,7 @@ pub fn run_setup_until<const N: usize>(
             stopped,
             reports: &reports,
             holds: (remote.holds, remote.held.as_secs_f64() * 1e3),
+            overruns: (remote.overruns.0, remote.overruns.1.as_secs_f64() * 1e3),
             cpu_s,
         },
     );

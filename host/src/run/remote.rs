@@ -25,6 +25,11 @@ pub struct Remote<'a, const N: usize = 6> {
     pub held: Duration,
     /// How long the last exchange waited before giving up (it returned a timeout).
     pub gave_up: Option<Duration>,
+    /// Free-running: steps that started after their slot because the step before them took
+    /// longer than the period, and the largest such delay.
+    pub overruns: (usize, Duration),
+    /// Whether a step was paced already (the first one has no slot to miss).
+    paced: bool,
 }
 
 impl<'a, const N: usize> Remote<'a, N> {
@@ -44,17 +49,24 @@ impl<'a, const N: usize> Remote<'a, N> {
             holds: 0,
             held: Duration::ZERO,
             gave_up: None,
+            overruns: (0, Duration::ZERO),
+            paced: false,
         }
     }
 
-    /// Before a step from target `c` [mm]: waits until the step may start.
+    /// Before a step from target `c` [mm]: waits until the step may start; a step that can
+    /// only start after its slot (the one before it overran the period) is counted.
     pub fn pace(&mut self, c: f64) {
         self.c = c;
         if let Some(p) = self.period {
             let now = Instant::now();
             if self.next_start > now {
                 std::thread::sleep(self.next_start - now);
+            } else if self.paced {
+                let late = now - self.next_start;
+                self.overruns = (self.overruns.0 + 1, self.overruns.1.max(late));
             }
+            self.paced = true;
             self.next_start = self.next_start.max(now) + p;
         }
     }
@@ -115,5 +127,58 @@ impl<const N: usize> Transport<ROWS, N> for Remote<'_, N> {
                 Err(e) => return Err(e),
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A transport never reached by pacing.
+    struct Unused;
+
+    impl Transport<ROWS, 6> for Unused {
+        fn exchange(
+            &mut self,
+            _: &ComplianceFrame<ROWS, 6>,
+            _: &mut Command<ROWS, 6>,
+        ) -> Result<ExchangeReport, TransportError> {
+            Err(TransportError::Timeout {
+                waited: Duration::ZERO,
+            })
+        }
+    }
+
+    /// A step that takes longer than the period makes the next one start late: counted, with
+    /// how late. The first step has no slot to miss; a step within its period is not counted.
+    #[test]
+    fn a_step_longer_than_the_period_is_counted_as_an_overrun() {
+        let mut inner = Unused;
+        let period = Duration::from_millis(200);
+        let mut remote = Remote::<6>::new(&mut inner, Some(period), None);
+        std::thread::sleep(Duration::from_millis(30));
+        remote.pace(0.0);
+        assert_eq!(remote.overruns.0, 0, "the first step");
+        remote.pace(0.1);
+        assert_eq!(
+            remote.overruns.0, 0,
+            "a step within its period waits for its slot"
+        );
+        // This step takes 400 ms: the next starts about 200 ms after its slot.
+        std::thread::sleep(Duration::from_millis(400));
+        remote.pace(0.2);
+        assert_eq!(remote.overruns.0, 1);
+        assert!(
+            remote.overruns.1 >= Duration::from_millis(150),
+            "{:?}",
+            remote.overruns.1
+        );
+        // Lock-step (no period): nothing to overrun.
+        let mut inner = Unused;
+        let mut lock_step = Remote::<6>::new(&mut inner, None, None);
+        lock_step.pace(0.0);
+        std::thread::sleep(Duration::from_millis(5));
+        lock_step.pace(0.1);
+        assert_eq!(lock_step.overruns.0, 0);
     }
 }

@@ -195,6 +195,11 @@ pub struct RunSummary {
     pub holds: usize,
     /// Total time spent holding [ms].
     pub held_ms: f64,
+    /// Free-running host (`needle serve --period-ms`): steps that started after their slot
+    /// because the step before them took longer than the period.
+    pub period_overruns: usize,
+    /// The largest such delay [ms].
+    pub period_overrun_max_ms: f64,
     /// Mean distance from the tip to the deformed path (polyline) over the steps inside the
     /// gel [mm].
     pub path_deviation_mean_mm: f64,
@@ -279,6 +284,8 @@ pub struct Ending<'a> {
     pub reports: &'a [StepReport],
     /// Holds and time held [ms].
     pub holds: (usize, f64),
+    /// Period overruns and the largest delay [ms].
+    pub overruns: (usize, f64),
     /// CPU time of the steps, summed over the process's threads [s].
     pub cpu_s: f64,
 }
@@ -446,6 +453,8 @@ impl Statistics {
             precision_fallbacks,
             holds: end.holds.0,
             held_ms: end.holds.1,
+            period_overruns: end.overruns.0,
+            period_overrun_max_ms: end.overruns.1,
             path_deviation_mean_mm: deviation.0,
             path_deviation_max_mm: deviation.1,
             steps_to_target: self.path.steps_to_target,
