@@ -42,6 +42,7 @@ class StepReport:
     depth: float
     punctured: bool
     punctured_now: bool
+    inside: bool
     rows: int
     sliding_points: int
     contact_force: float
@@ -83,6 +84,7 @@ class RunResult:
     errors: F64
     depths: F64
     punctured: npt.NDArray[np.bool_]
+    inside: npt.NDArray[np.bool_]
     tips: F64
     targets: F64
     joints: F64

@@ -321,6 +321,12 @@ impl StepReport {
     fn punctured_now(&self) -> bool {
         self.r.punctured_now
     }
+    /// Whether the tip was inside the gel at this step: punctured, and not the step that
+    /// punctured (it ends on the indented surface). The steps of e_mean and e_max.
+    #[getter]
+    fn inside(&self) -> bool {
+        self.r.tip_inside()
+    }
     /// Constraint rows of the step.
     #[getter]
     fn rows(&self) -> usize {
@@ -376,6 +382,7 @@ impl StepReport {
             "depth",
             "punctured",
             "punctured_now",
+            "inside",
             "rows",
             "sliding_points",
             "contact_force",
@@ -715,6 +722,12 @@ impl RunResult {
     #[getter]
     fn punctured<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<bool>> {
         PyArray1::from_vec(py, self.reports.iter().map(|r| r.inserted).collect())
+    }
+    /// Whether the tip was inside the gel, per step, shape (steps,): punctured, and not the
+    /// step that punctured (it ends on the indented surface). The steps of e_mean and e_max.
+    #[getter]
+    fn inside<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<bool>> {
+        PyArray1::from_vec(py, self.reports.iter().map(|r| r.tip_inside()).collect())
     }
     /// Tip per step, shape (steps, 3) [mm].
     #[getter]

@@ -30,6 +30,7 @@ def test_the_result_has_arrays_and_a_summary():
         a = getattr(result, name)
         assert a.shape == (n,) and a.dtype == np.float64, name
     assert result.punctured.shape == (n,) and result.punctured.dtype == np.bool_
+    assert result.inside.shape == (n,) and not (result.inside & ~result.punctured).any()
     assert result.tips.shape == result.targets.shape == (n, 3)
     assert result.joints.shape == (n, 6)
     assert result.tips.dtype == result.targets.dtype == result.joints.dtype == np.float64
