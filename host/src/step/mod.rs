@@ -136,7 +136,8 @@ impl StepReport {
     /// surface, at depth 0, and the tip enters the gel during the next step. Its `error` is
     /// measured against the embedded target all the same (the gel not yet relaxed around the
     /// tip): [`crate::run::RunSummary::e_puncture_mm`]. The tracking metrics inside the gel
-    /// (e_mean, e_max, the path deviation, the error against depth) count these steps.
+    /// (e_mean, e_max, the path deviation, the error against depth) count only the steps for
+    /// which this is true.
     ///
     /// # Example
     /// ```
