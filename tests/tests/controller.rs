@@ -124,3 +124,36 @@ fn target_waits_for_a_lagging_tip_with_a_finite_max_lead() {
         assert!((c - (k + 1) as f64 * adv).abs() < 1e-9, "step {k}: c {c}");
     }
 }
+
+/// `inverse.aim_ahead = 10` mm: the heading is asked to point `L t̂ + e`, back towards the path,
+/// so a tip that fell beside a bent path cuts back towards it; with the tangent alone
+/// (`aim_ahead = 0`, the default) it runs beside the path to the end. The
+/// suite's `bend_y`: from 10 mm deep on, the tip ran 0.32–0.47 mm beside its path with the
+/// tangent alone and 0.19–0.23 mm with the look-ahead (`needle run scenes/suite/bend_y.toml
+/// [--set inverse.aim_ahead=0] --out DIR`, `steps.csv`).
+#[test]
+#[ignore = "two full insertions (release, ~3 s): run with --include-ignored"]
+fn a_tip_beside_a_bent_path_cuts_back_towards_it() {
+    let deep_error = |overrides: &[(String, String)]| {
+        let scene = suite_scene("bend_y")
+            .with_overrides(overrides)
+            .expect("override");
+        let result = run(&scene, &RunOptions::default(), |_| {}).expect("the run starts");
+        let deep: Vec<f64> = result
+            .reports
+            .iter()
+            .filter(|r| r.tip_inside() && r.depth >= 10.0)
+            .map(|r| r.error)
+            .collect();
+        assert!(deep.len() > 300, "{} steps deeper than 10 mm", deep.len());
+        let mean = deep.iter().sum::<f64>() / deep.len() as f64;
+        let max = deep.iter().copied().fold(0.0_f64, f64::max);
+        (mean, max, result.summary)
+    };
+    let (mean0, max0, _) = deep_error(&[("inverse.aim_ahead".into(), "0.0".into())]);
+    let (mean, max, s) = deep_error(&[("inverse.aim_ahead".into(), "10.0".into())]);
+    eprintln!("tangent alone: mean {mean0:.3}, max {max0:.3} mm; look-ahead: mean {mean:.3}, max {max:.3} mm");
+    assert_eq!(s.outcome, needle_host::run::Outcome::Reached, "{s:?}");
+    assert!(mean < 0.75 * mean0, "mean {mean} mm against {mean0} mm");
+    assert!(max < 0.3, "max {max} mm");
+}
