@@ -152,7 +152,9 @@ fn a_tip_beside_a_bent_path_cuts_back_towards_it() {
     };
     let (mean0, max0, _) = deep_error(&[("inverse.aim_ahead".into(), "0.0".into())]);
     let (mean, max, s) = deep_error(&[("inverse.aim_ahead".into(), "10.0".into())]);
-    eprintln!("tangent alone: mean {mean0:.3}, max {max0:.3} mm; look-ahead: mean {mean:.3}, max {max:.3} mm");
+    eprintln!(
+        "tangent alone: mean {mean0:.3}, max {max0:.3} mm; look-ahead: mean {mean:.3}, max {max:.3} mm"
+    );
     assert_eq!(s.outcome, needle_host::run::Outcome::Reached, "{s:?}");
     assert!(mean < 0.75 * mean0, "mean {mean} mm against {mean0} mm");
     assert!(max < 0.3, "max {max} mm");
