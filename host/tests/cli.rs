@@ -229,3 +229,70 @@ fn logs_are_leveled_by_v_and_q_and_rust_log() {
         stderr(&debug)
     );
 }
+
+/// `needle compare` on two runs of the same suite: every scene equal, exit 0; against a copy
+/// whose scene lost its target, the scene is named and `--fail-on-loss` exits 4; a file that
+/// is not a suite's JSON is refused naming it, exit 2.
+#[test]
+fn compare_reads_two_suite_runs_and_names_a_lost_target() {
+    let d = tmp("compare");
+    let scenes = d.join("scenes");
+    std::fs::create_dir_all(&scenes).expect("dir");
+    let src = concat!(env!("CARGO_MANIFEST_DIR"), "/../scenes/suite/simple_y.toml");
+    std::fs::copy(src, scenes.join("simple_y.toml")).expect("copy");
+    let out = d.join("run");
+    let o = needle()
+        .args([
+            "suite",
+            "--no-benchmarks",
+            "--controllers",
+            "default",
+            "--quiet",
+        ])
+        .args(["--nodes", "300", "--steps", "3", "--dir"])
+        .arg(&scenes)
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .expect("suite");
+    assert!(out.join("suite.json").is_file(), "{}", stderr(&o));
+    let o = needle()
+        .arg("compare")
+        .arg(&out)
+        .arg(&out)
+        .output()
+        .expect("compare");
+    let text = String::from_utf8_lossy(&o.stdout).into_owned();
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    assert!(text.starts_with("1 of 1 scenes equal"), "{text}");
+    // The same run, its scene marked reached before and missed after.
+    let json = std::fs::read_to_string(out.join("suite.json")).expect("read");
+    let mut rows: serde_json::Value = serde_json::from_str(&json).expect("json");
+    rows[0]["summary"]["outcome"] = "reached".into();
+    let before = d.join("before.json");
+    std::fs::write(&before, rows.to_string()).expect("write");
+    rows[0]["summary"]["outcome"] = "missed_target".into();
+    let after = d.join("after.json");
+    std::fs::write(&after, rows.to_string()).expect("write");
+    let o = needle()
+        .arg("compare")
+        .args([&before, &after])
+        .arg("--fail-on-loss")
+        .output()
+        .expect("compare");
+    let text = String::from_utf8_lossy(&o.stdout).into_owned();
+    assert_eq!(o.status.code(), Some(4), "{text}{}", stderr(&o));
+    assert!(text.contains("targets lost: `simple_y`"), "{text}");
+    let o = needle()
+        .arg("compare")
+        .arg(src)
+        .arg(&after)
+        .output()
+        .expect("compare");
+    assert_eq!(o.status.code(), Some(2));
+    assert!(
+        stderr(&o).contains("simple_y.toml: not JSON"),
+        "{}",
+        stderr(&o)
+    );
+}

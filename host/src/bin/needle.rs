@@ -68,6 +68,12 @@ enum Command {
     /// suite.csv, suite.json and a chart (exit, from the first controller: 0 all reached, 4 a
     /// scene missed its target, 5 an obstacle hit, 3 a run diverged, 1 a scene could not run).
     Suite(SuiteArgs),
+    /// Two runs of the suite scene by scene (the `suite.json` of two `needle suite` runs, e.g.
+    /// before and after a change of configuration): targets gained and lost, scenes moved by
+    /// more than a tolerance on e_mean, e_max or e_final, scenes equal in every compared field,
+    /// and each run's means and worst cases (exit 4 with `--fail-on-loss` when a target was
+    /// lost, 2 when a file cannot be compared).
+    Compare(CompareArgs),
     /// The benchmark report: both scenes under both controllers plus the mesh, δq, blend
     /// distance and constraint-spacing sweeps; writes summary.md, CSVs and SVG/PNG charts.
     Report {
@@ -174,6 +180,23 @@ struct SuiteArgs {
     /// No progress on stderr.
     #[arg(long)]
     quiet: bool,
+}
+
+#[derive(Args)]
+struct CompareArgs {
+    /// The first run's `suite.json` (or its output folder).
+    before: PathBuf,
+    /// The second run's `suite.json` (or its output folder).
+    after: PathBuf,
+    /// The controller compared (the suite's `--controllers` name).
+    #[arg(long, default_value = "default")]
+    controller: String,
+    /// A scene moves when e_mean, e_max or e_final changes by more than this [mm].
+    #[arg(long, default_value_t = 0.05)]
+    tolerance: f64,
+    /// Exit 4 when a scene that reached its target before does not after.
+    #[arg(long)]
+    fail_on_loss: bool,
 }
 
 #[derive(Args)]
@@ -471,6 +494,42 @@ fn print_timing(t: &StageTiming, cpu_ms: f64) {
     );
 }
 
+fn compare_cmd(a: &CompareArgs) -> ExitCode {
+    use needle_host::suite::compare;
+    if !(a.tolerance.is_finite() && a.tolerance >= 0.0) {
+        eprintln!(
+            "error: --tolerance {}: must be a finite number ≥ 0 [mm]",
+            a.tolerance
+        );
+        return ExitCode::from(2);
+    }
+    // A folder stands for the suite.json in it.
+    let file = |p: &PathBuf| {
+        if p.is_dir() {
+            p.join("suite.json")
+        } else {
+            p.clone()
+        }
+    };
+    let (before, after) = match (
+        compare::load(&file(&a.before), &a.controller),
+        compare::load(&file(&a.after), &a.controller),
+    ) {
+        (Ok(b), Ok(a)) => (b, a),
+        (Err(e), _) | (_, Err(e)) => {
+            eprintln!("error: {e}");
+            return ExitCode::from(2);
+        }
+    };
+    let c = compare::compare(&before, &after, a.tolerance);
+    print!("{}", c.text);
+    if a.fail_on_loss && !c.lost.is_empty() {
+        eprintln!("{} target(s) lost", c.lost.len());
+        return ExitCode::from(4);
+    }
+    ExitCode::SUCCESS
+}
+
 fn suite_cmd(a: &SuiteArgs) -> ExitCode {
     let mut overrides = Vec::new();
     for kv in &a.set {
@@ -731,6 +790,7 @@ fn main() -> ExitCode {
         }),
         Command::Run(a) => run_cmd(a),
         Command::Suite(a) => suite_cmd(&a),
+        Command::Compare(a) => compare_cmd(&a),
         Command::Serve(a) => serve_cmd(a),
     }
 }

@@ -15,6 +15,7 @@
 
 #[cfg(feature = "charts")]
 mod chart;
+pub mod compare;
 
 use crate::output::OutputError;
 use crate::run::{Outcome, RunOptions, RunSummary, run};
