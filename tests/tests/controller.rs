@@ -39,9 +39,10 @@ fn clearance_rows_predict_the_clearance_after_the_step() {
         if !world.punctured || world.depth() < 5.0 {
             continue;
         }
-        assert_eq!(
-            k, 3,
-            "the three obstacles in the frame once the needle is in"
+        // The three obstacles' nearest points, then points behind them as the capacity allows.
+        assert!(
+            (3..=needle_core::payload::NCLEAR).contains(&k),
+            "{k} rows: the three obstacles in the frame once the needle is in"
         );
         let mut predicted: Vec<f64> = (0..k).map(|j| frame.clearance(j, &cmd.lambda)).collect();
         let mut measured = world.clearances();

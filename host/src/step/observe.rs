@@ -52,12 +52,23 @@ pub fn observations<const N: usize>(
     [tip, dir, target, tangent, entry]
 }
 
+/// How far behind the needle point nearest to an obstacle (towards the base, along the
+/// needle) the points of its extra clearance rows lie [mm]. A row holds its needle point fixed
+/// in the needle; when the needle advances along itself, another point comes where the nearest
+/// one was, and the row of the nearest point alone then over-predicts the clearance (by 0.21 mm
+/// for an advance of 4.3 mm past an obstacle, `docs/benchmark.md`). Advances per step reach the
+/// trust region's 5 mm; the distance to a sphere or a convex surface is convex, so each row's
+/// linear model under-predicts its point's clearance, and the rows of these points bound the
+/// needle's clearance over such an advance.
+const BEHIND_MM: [f64; 3] = [1.5, 3.0, 4.5];
+
 /// The obstacles the controller sees: for each obstacle, the point of the inserted needle
 /// nearest to it at the start of the step (the needle within `depth` of the tip, as
 /// [`World::clearances`] measures) and the obstacle's point (a sphere's centre; a mesh's
 /// closest surface point, through its triangle's vertices), observed after the free motion;
-/// the `NCLEAR` nearest obstacles when there are more. None before puncture (nothing is
-/// inserted).
+/// the `NCLEAR` nearest obstacles when there are more. Then, as the capacity allows, the rows
+/// of the inserted needle points [`BEHIND_MM`] behind each nearest point, lowest clearance
+/// first. None before puncture (nothing is inserted).
 pub fn clearance_observations<const N: usize>(
     world: &World<N>,
     free: &FreePositions,
@@ -79,6 +90,25 @@ pub fn clearance_observations<const N: usize>(
         a: Matrix3::identity(),
         free: free.needle[k] * (1.0 - f) + free.needle[k + 1] * f,
     };
+    // The inserted needle point at arc length `alpha` from the tip: (segment, fraction).
+    let point_at = |alpha: f64| {
+        if alpha > depth {
+            return None;
+        }
+        let j = (0..n - 1).find(|&j| arc[j + 1] <= alpha && alpha <= arc[j])?;
+        let len = arc[j] - arc[j + 1];
+        let g = if len > 0.0 {
+            (arc[j] - alpha) / len
+        } else {
+            0.0
+        };
+        Some((j, g, nodes[j] * (1.0 - g) + nodes[j + 1] * g))
+    };
+    let behind = |k: usize, f: f64| {
+        let nearest = arc[k] * (1.0 - f) + arc[k + 1] * f;
+        BEHIND_MM.iter().filter_map(move |s| point_at(nearest + s))
+    };
+    let mut extra: Vec<(f64, ClearanceObservation)> = Vec::new();
     let mut seen: Vec<(f64, ClearanceObservation)> = world
         .obstacles
         .iter()
@@ -118,6 +148,22 @@ pub fn clearance_observations<const N: usize>(
                     Vector3::zeros()
                 };
                 let centre = gel_observation(gel_map(world, e), free.gel_point(world, e));
+                for (j, g, p) in behind(k, f) {
+                    let current = p - c;
+                    let dist = current.norm();
+                    if dist > 0.0 {
+                        extra.push((
+                            dist - r,
+                            ClearanceObservation {
+                                needle: needle_at(j, g),
+                                obstacle: vec![centre.clone()],
+                                clearance: dist - r,
+                                normal: current / dist,
+                                current,
+                            },
+                        ));
+                    }
+                }
                 Some((
                     d - r,
                     ClearanceObservation {
@@ -135,19 +181,37 @@ pub fn clearance_observations<const N: usize>(
                 surface,
             } => {
                 let c = world.mesh_clearance(vertices, surface)?;
-                let tri = triangles[c.triangle];
-                let obstacle = (0..3)
-                    .map(|i| {
-                        let e = &vertices[tri[i]];
-                        let w = c.weights[i];
-                        Observation {
-                            model: Model::Gel,
-                            map: gel_map(world, e),
-                            a: Matrix3::identity() * w,
-                            free: free.gel_point(world, e) * w,
-                        }
-                    })
-                    .collect();
+                let surface_point = |c: &crate::proximity::SurfaceClearance| {
+                    let tri = triangles[c.triangle];
+                    (0..3)
+                        .map(|i| {
+                            let e = &vertices[tri[i]];
+                            let w = c.weights[i];
+                            Observation {
+                                model: Model::Gel,
+                                map: gel_map(world, e),
+                                a: Matrix3::identity() * w,
+                                free: free.gel_point(world, e) * w,
+                            }
+                        })
+                        .collect()
+                };
+                let obstacle = surface_point(&c);
+                let at = world.obstacle_vertices(vertices);
+                for (j, g, p) in behind(c.segment, c.fraction) {
+                    if let Some(b) = surface.clearance(&at, &[(p, p)]) {
+                        extra.push((
+                            b.value,
+                            ClearanceObservation {
+                                needle: needle_at(j, g),
+                                obstacle: surface_point(&b),
+                                clearance: b.value,
+                                normal: b.normal,
+                                current: b.point - b.surface_point,
+                            },
+                        ));
+                    }
+                }
                 Some((
                     c.value,
                     ClearanceObservation {
@@ -163,6 +227,9 @@ pub fn clearance_observations<const N: usize>(
         .collect();
     seen.sort_by(|a, b| a.0.total_cmp(&b.0));
     seen.truncate(NCLEAR);
+    extra.sort_by(|a, b| a.0.total_cmp(&b.0));
+    extra.truncate(NCLEAR - seen.len());
+    seen.extend(extra);
     seen.into_iter().map(|(_, c)| c).collect()
 }
 
