@@ -14,7 +14,13 @@
 //! from there the rounds cycled between two statuses of one axial row (tied with two others,
 //! then freed), every sliding point sticking being the solution.
 //!
-//! File format (`tests/data/*_sliding_m*.txt`): `m`; one line per row group
+//! A fourth (`cycling_ties_m30.txt`) is a Jacobian column of a frame near the end of a held-out
+//! insertion (`tools/gen_suite.py --seed 31`, slot `place_right`; 8 sliding points, μ_n 0.1),
+//! with the iterate the column solve's second polish started from: five axial rows sit at the
+//! transition between tied and free, the rounds cycle through several status sets and give up
+//! (the run hit the sweep cap in 4 steps). [`BlockGs::solve_on_active_sets_feasible`] solves it.
+//!
+//! File format (`tests/data/*_m*.txt`): `m`; one line per row group
 //! `kind start len mu r0`; the `m` rows of `W`; `δ` (base rows at the column's joints);
 //! optionally the starting iterate.
 #![allow(clippy::expect_used, clippy::unwrap_used, clippy::panic)]
@@ -204,4 +210,31 @@ fn cycling_axial_status_does_not_stop_the_active_set_rounds() {
     let r = gs.solve(&p.w, &p.delta, &mut lambda, &gs_params);
     assert!(r.converged, "{name}: {r:?}");
     assert_solution(&p, &lambda, name, tolerance);
+}
+
+#[test]
+fn ties_at_the_transition_cycle_the_rounds_but_not_the_feasible_polish() {
+    let name = "cycling_ties_m30.txt";
+    let p = load(name);
+    let mut gs = BlockGs::<M>::new();
+    gs.prepare(&p.w, p.m, &p.groups).unwrap();
+    let mut set = Box::new(ActiveSet::<M>::new());
+    let start = p.start.expect("a starting iterate");
+    // A Jacobian column: the columns' tolerance, the sweeps of the cap.
+    let tolerance = 1e-5;
+    let gs_params = GsParams { tolerance, ..GS };
+    // What the step did: the rounds end in a cycle on an iterate from which Gauss-Seidel (on
+    // the full problem here; the column's own solve is on the reduced one) runs into the cap.
+    let mut lambda = start;
+    assert!(!gs.solve_on_active_sets(&p.w, &p.delta, &mut lambda, &mut set, 12));
+    let r = gs.solve(&p.w, &p.delta, &mut lambda, &gs_params);
+    assert!(!r.converged, "{name}: the rounds now solve it: {r:?}");
+
+    // The feasible polish finishes; Gauss-Seidel confirms it at once.
+    let mut lambda = start;
+    assert!(gs.solve_on_active_sets_feasible(&p.w, &p.delta, &mut lambda, &mut set, 40));
+    assert!(set.tied_rows() > 0, "{name}: some axial rows slide");
+    assert_solution(&p, &lambda, name, 1e-7);
+    let r = gs.solve(&p.w, &p.delta, &mut lambda, &gs_params);
+    assert!(r.converged && r.iterations <= 2, "{name}: {r:?}");
 }

@@ -192,3 +192,66 @@ fn polish_of_a_sliding_group_respects_the_axial_bound() {
         lambda[2]
     );
 }
+
+/// The feasible active-set polish (`BlockGs::solve_on_active_sets_feasible`) on every
+/// frictionless problem of the reference, six decoupled bilateral rows put first as a frame's
+/// base rows: from λ = 0 (every row closed) it opens the row the residual calls for, steps only
+/// as far as the first force that reaches zero, and finishes on the reference's answer
+/// (a primal active-set method on a convex QP); Gauss-Seidel confirms it in one sweep. (Frictional
+/// contacts are the sweeps' to settle: a sliding contact's tangential pair is held through the
+/// polish.)
+#[test]
+fn feasible_active_set_polish_reaches_the_reference_frictionless_solutions() {
+    let r = load_ref("lcp_ref.json");
+    let mut gs = Box::new(BlockGs::<M>::new());
+    let mut set = boxed_zeroed::<needle_core::ActiveSet<M>>();
+    let mut solved = 0;
+    for p in r["problems"].as_array().expect("problems") {
+        let id = p["id"].as_u64().expect("id");
+        let pb = load_problem(p);
+        let n = pb.n + 6;
+        if n > M {
+            continue;
+        }
+        let mut w = boxed_zeroed::<[[f64; M]; M]>();
+        let mut delta = [0.0; M];
+        for i in 0..6 {
+            w[i][i] = 1.0;
+        }
+        for i in 0..pb.n {
+            w[6 + i][6..n].copy_from_slice(&pb.w[i][..pb.n]);
+            delta[6 + i] = pb.delta[i];
+        }
+        let mut groups = vec![RowGroup::bilateral(0, 6)];
+        groups.extend((6..n as u32).map(RowGroup::unilateral));
+        gs.prepare(&w, n, &groups).expect("valid problem");
+        let mut lambda = [0.0; M];
+        let done = gs.solve_on_active_sets_feasible(&w, &delta, &mut lambda, &mut set, 2 * n);
+        assert!(done, "problem {id}: not finished in {} rounds", 2 * n);
+        assert!(
+            lambda[6..n].iter().all(|x| *x >= 0.0),
+            "problem {id}: a negative force"
+        );
+        let e = rel_err(&lambda[6..n], &arr(&p["frictionless"]["lambda"]));
+        let params = GsParams {
+            tolerance: 1e-10,
+            max_iterations: 10,
+            polish: false,
+            ..GsParams::default()
+        };
+        let rep = gs.solve(&w, &delta, &mut lambda, &params);
+        println!(
+            "problem {id:2} n={:3}: rel err {e:.2e}, then {} sweeps",
+            pb.n, rep.iterations
+        );
+        assert!(e <= 1e-9, "problem {id}: relative error {e:e}");
+        assert!(lambda[..6].iter().all(|x| x.abs() < 1e-12));
+        assert!(
+            rep.converged && rep.iterations <= 1,
+            "problem {id}: {rep:?}"
+        );
+        solved += 1;
+    }
+    println!("{solved} problems");
+    assert!(solved >= 20, "{solved} problems of up to {M} rows");
+}

@@ -277,29 +277,32 @@ impl<const M: usize> BlockGs<M> {
         lambda: &mut [f64; M],
         set: &mut ActiveSet<M>,
     ) -> bool {
-        if !set.valid {
+        if !set.valid || !self.newton_step(w, delta, lambda, set) {
             return false;
         }
+        for k in 0..set.n {
+            lambda[set.rows[k] as usize] += set.x[k];
+        }
+        self.put_tied_on_bounds(lambda, set);
+        true
+    }
+
+    /// The Newton step of the free rows of `set` (factored) from `lambda` into `set.x`:
+    /// `K⁻¹ (δ_F − (W λ)_F)`; `false` when it is not finite.
+    fn newton_step(
+        &self,
+        w: &[[f64; M]; M],
+        delta: &[f64; M],
+        lambda: &[f64; M],
+        set: &mut ActiveSet<M>,
+    ) -> bool {
         let (n, m) = (set.n, self.m);
         for k in 0..n {
             let r = set.rows[k] as usize;
             set.x[k] = delta[r] - dot(&w[r][..m], &lambda[..m]);
         }
         lu_solve(&set.lu, &set.perm, n, &mut set.x);
-        if !set.x[..n].iter().all(|v| v.is_finite()) {
-            return false;
-        }
-        for k in 0..n {
-            lambda[set.rows[k] as usize] += set.x[k];
-        }
-        for t in &set.tied[..set.n_tied] {
-            let a = t.row as usize;
-            let l = set.rows[t.lat as usize] as usize;
-            let (mu, r0) = self.sliding_law(a);
-            let sigma = if lambda[a] < 0.0 { -1.0 } else { 1.0 };
-            lambda[a] = sigma * (mu * libm::hypot(lambda[l], lambda[l + 1]) + r0);
-        }
-        true
+        set.x[..n].iter().all(|v| v.is_finite())
     }
 
     /// Newton's method on the active set with the statuses updated between steps (a
@@ -366,6 +369,130 @@ impl<const M: usize> BlockGs<M> {
             previous = (size, newton);
         }
         false
+    }
+
+    /// A primal active-set method that keeps every iterate feasible: each round factors the set
+    /// `lambda` gives and takes its Newton step only as far as the first force that would leave
+    /// its admissible set (a normal force through zero, a sticking tangential pair out of its
+    /// friction disk, a free axial force beyond its bound `μ_n |λ_l| + r_0`); that force then
+    /// changes status (closed, sliding, tied). A full step with every force admissible is
+    /// followed by the largest correction the residual calls for (a closed row that must push
+    /// opened, a tied axial row whose slip runs the wrong way freed), one at a time. `true` when a
+    /// full step leaves nothing to correct; `false` on a singular set or when `max_rounds` run
+    /// out (`lambda` then holds the last iterate, feasible, for Gauss-Seidel to go on from).
+    ///
+    /// [`Self::solve_on_active_sets`] changes every wrong status at once after a full step,
+    /// which converges in a few rounds when the Gauss-Seidel iterate it starts from has nearly
+    /// every status right; when several axial rows sit at the transition between tied and free,
+    /// its full steps overshoot (a freed axial force several times past its bound) and its
+    /// statuses cycle. Short steps cannot overshoot; they cost a round per status change.
+    pub fn solve_on_active_sets_feasible(
+        &self,
+        w: &[[f64; M]; M],
+        delta: &[f64; M],
+        lambda: &mut [f64; M],
+        set: &mut ActiveSet<M>,
+        max_rounds: usize,
+    ) -> bool {
+        let m = self.m;
+        for _ in 0..max_rounds {
+            if !(self.factor_active_set(w, lambda, set) && self.newton_step(w, delta, lambda, set))
+            {
+                return false;
+            }
+            // The free rows' Newton step as a direction over all rows (tied and held: 0).
+            let (n, mut dir) = (set.n, [0.0; M]);
+            for k in 0..n {
+                dir[set.rows[k] as usize] = set.x[k];
+            }
+            let tied = |row: usize| set.tied[..set.n_tied].iter().any(|t| t.row as usize == row);
+            // The longest step every block admits, and the block that stops it.
+            let mut alpha = 1.0;
+            let mut blocking = None;
+            for (k, b) in self.blocks[..self.n_blocks].iter().enumerate() {
+                let s = b.start as usize;
+                if b.kind == KIND_SLIDING && tied(s + 2) {
+                    continue;
+                }
+                let excess = |a: f64| block_excess(b, lambda, &dir, a);
+                if excess(alpha) <= 0.0 {
+                    continue;
+                }
+                // The first step at which the block leaves its set (bisection; excess(0) ≤ 0
+                // for the feasible iterates this method keeps, up to round-off).
+                let (mut lo, mut hi) = (0.0, alpha);
+                for _ in 0..60 {
+                    let mid = 0.5 * (lo + hi);
+                    if excess(mid) > 0.0 {
+                        hi = mid;
+                    } else {
+                        lo = mid;
+                    }
+                }
+                alpha = lo;
+                blocking = Some(k);
+            }
+            for r in 0..m {
+                lambda[r] += alpha * dir[r];
+            }
+            self.put_tied_on_bounds(lambda, set);
+            match blocking {
+                Some(k) => self.block_on_boundary(&self.blocks[k], lambda, &dir),
+                None => {
+                    if self.correct_statuses(w, delta, lambda, true).is_none() {
+                        return true;
+                    }
+                }
+            }
+        }
+        false
+    }
+
+    /// Every tied axial row of `set` exactly on its bound `±(μ_n |λ_l| + r_0)`.
+    fn put_tied_on_bounds(&self, lambda: &mut [f64; M], set: &ActiveSet<M>) {
+        for t in &set.tied[..set.n_tied] {
+            let a = t.row as usize;
+            let l = set.rows[t.lat as usize] as usize;
+            let (mu, r0) = self.sliding_law(a);
+            let sigma = if lambda[a] < 0.0 { -1.0 } else { 1.0 };
+            lambda[a] = sigma * (mu * libm::hypot(lambda[l], lambda[l + 1]) + r0);
+        }
+    }
+
+    /// The forces of block `b`, which a step along `dir` has just brought onto the boundary of
+    /// its admissible set, put exactly on it, so that the next factorisation gives them their
+    /// new status: a normal force at zero closes the block, a tangential pair on its disk
+    /// slides (held; a pair at zero that the step would have turned outward is put on the disk
+    /// in that direction), an axial force on its bound is tied.
+    fn block_on_boundary(&self, b: &super::Block, lambda: &mut [f64; M], dir: &[f64; M]) {
+        let s = b.start as usize;
+        match b.kind {
+            KIND_UNILATERAL => lambda[s] = 0.0,
+            KIND_CONTACT => {
+                let bound = b.mu * lambda[s];
+                let t = libm::hypot(lambda[s + 1], lambda[s + 2]);
+                let d = libm::hypot(dir[s + 1], dir[s + 2]);
+                // The normal force blocks when the disk would not have: the tangential pair is
+                // inside the disk with room to spare, or the normal force is what shrinks it.
+                let normal_blocks =
+                    lambda[s] <= 0.0 || bound <= 0.0 || (dir[s] < 0.0 && t <= bound * (1.0 - 1e-6));
+                if normal_blocks {
+                    lambda[s..s + 3].fill(0.0);
+                } else if t > 0.0 {
+                    lambda[s + 1] *= bound / t;
+                    lambda[s + 2] *= bound / t;
+                } else if d > 0.0 {
+                    lambda[s + 1] = bound * dir[s + 1] / d;
+                    lambda[s + 2] = bound * dir[s + 2] / d;
+                }
+            }
+            KIND_SLIDING => {
+                let bound = b.mu * libm::hypot(lambda[s], lambda[s + 1]) + b.r0;
+                let sigma = if lambda[s + 2] < 0.0 { -1.0 } else { 1.0 };
+                lambda[s + 2] = sigma * bound;
+            }
+            _ => {}
+        }
     }
 
     /// The status corrections of [`Self::solve_on_active_sets`] after a Newton step, all of
@@ -501,6 +628,38 @@ impl<const M: usize> BlockGs<M> {
             out[t.row as usize] += t.c[0] * du[l] + t.c[1] * du[l + 1];
         }
         true
+    }
+}
+
+/// How far the forces of block `b` at `λ + α d` are outside its admissible set (≤ 0: inside): a
+/// negative normal force, a tangential pair beyond `μ λ_n`, an axial force beyond
+/// `μ_n |λ_l| + r_0`; bilateral blocks are always inside. Relative to the block's force scale
+/// with a round-off allowance, so a force left on its boundary by the last step is inside.
+fn block_excess<const M: usize>(
+    b: &super::Block,
+    lambda: &[f64; M],
+    d: &[f64; M],
+    alpha: f64,
+) -> f64 {
+    let s = b.start as usize;
+    let at = |i: usize| lambda[s + i] + alpha * d[s + i];
+    let scale = |v: f64| 1e-12 * v + 1e-300;
+    match b.kind {
+        KIND_UNILATERAL => -at(0) - scale(libm::fabs(lambda[s])),
+        KIND_CONTACT => {
+            let n = at(0);
+            if lambda[s] == 0.0 && d[s] == 0.0 {
+                return -1.0; // closed and held closed
+            }
+            let t = libm::hypot(at(1), at(2));
+            let allowance = scale(libm::fabs(lambda[s]) + t);
+            (-n).max(t - b.mu * n) - allowance
+        }
+        KIND_SLIDING => {
+            let bound = b.mu * libm::hypot(at(0), at(1)) + b.r0;
+            libm::fabs(at(2)) - bound - scale(bound + libm::fabs(lambda[s + 2]))
+        }
+        _ => -1.0,
     }
 }
 

@@ -36,6 +36,10 @@ const POLISH_TIMES: u32 = 3;
 /// hardest scenes (sliding points along a curving path) it needs 2–10.
 const ACTIVE_SET_ROUNDS: usize = 12;
 
+/// Most rounds of the feasible active-set polish ([`BlockGs::solve_on_active_sets_feasible`]),
+/// one status change each.
+const FEASIBLE_ROUNDS: usize = 40;
+
 /// Which λ a solve writes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(super) enum Target {
@@ -239,14 +243,15 @@ impl<const M: usize, const N: usize> Controller<M, N> {
         mut rep: SolveReport,
     ) -> SolveReport {
         // Polish, then Gauss-Seidel for at most as many sweeps again; should that not converge
-        // (the rounds ran out on statuses that cycle), polish again from the new iterate, up to
-        // POLISH_TIMES polishes in all, the last followed by Gauss-Seidel for whatever the cap
-        // leaves.
+        // (the rounds ran out on statuses that cycle), polish again from the new iterate with
+        // the feasible method (short steps, one status change at a time: it does not cycle
+        // where the first one does), up to POLISH_TIMES polishes in all, the last followed by
+        // Gauss-Seidel for whatever the cap leaves.
         for polish in 0..POLISH_TIMES {
             if rep.converged {
                 break;
             }
-            self.polish_reduced(frame, d, target);
+            self.polish_reduced(frame, d, target, polish > 0);
             let left = gs.max_iterations.saturating_sub(rep.iterations);
             let left = GsParams {
                 max_iterations: if polish + 1 < POLISH_TIMES {
@@ -379,8 +384,16 @@ impl<const M: usize, const N: usize> Controller<M, N> {
     /// rows close to parallel): Newton's method on the active set from the current iterate —
     /// stick rows bilateral, slipping axial rows tied to their bound, the statuses corrected
     /// between steps — on the full problem, written back into the reduced iterate; Gauss-Seidel
-    /// then confirms it (and repairs any status the rounds left wrong).
-    fn polish_reduced(&mut self, frame: &ComplianceFrame<M, N>, d: &[f64; 6], target: Target) {
+    /// then confirms it (and repairs any status the rounds left wrong). `feasible`: by the
+    /// feasible active-set method instead ([`BlockGs::solve_on_active_sets_feasible`]), for a
+    /// solve the first polish left unconverged.
+    fn polish_reduced(
+        &mut self,
+        frame: &ComplianceFrame<M, N>,
+        d: &[f64; 6],
+        target: Target,
+        feasible: bool,
+    ) {
         let n = self.red.rows();
         let full = self.lambda.of(target);
         self.red.expand(frame, d, &self.lr, full);
@@ -388,7 +401,17 @@ impl<const M: usize, const N: usize> Controller<M, N> {
             self.delta[..6].copy_from_slice(d);
             // Even when the rounds run out, their last iterate (finite, by construction) is far
             // closer than the slow Gauss-Seidel iterate it started from.
-            newton_on_active_set(&self.gs_full, &mut self.set, &frame.w, &self.delta, full);
+            if feasible {
+                self.gs_full.solve_on_active_sets_feasible(
+                    &frame.w,
+                    &self.delta,
+                    full,
+                    &mut self.set,
+                    FEASIBLE_ROUNDS,
+                )
+            } else {
+                newton_on_active_set(&self.gs_full, &mut self.set, &frame.w, &self.delta, full)
+            };
             if full[6..6 + n].iter().all(|x| x.is_finite()) {
                 self.lr[..n].copy_from_slice(&full[6..6 + n]);
             }
