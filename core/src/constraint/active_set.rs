@@ -386,6 +386,11 @@ impl<const M: usize> BlockGs<M> {
     /// every status right; when several axial rows sit at the transition between tied and free,
     /// its full steps overshoot (a freed axial force several times past its bound) and its
     /// statuses cycle. Short steps cannot overshoot; they cost a round per status change.
+    ///
+    /// Not for sliding Coulomb contacts: their tangential pair is held (it has no Newton
+    /// direction), so a normal force that falls shrinks the disk under it and stops every step
+    /// at once; the rounds then run out and Gauss-Seidel settles the contact (see
+    /// `docs/architecture.md`, "A feasible polish where the rounds cycle").
     pub fn solve_on_active_sets_feasible(
         &self,
         w: &[[f64; M]; M],
