@@ -20,6 +20,15 @@
 //! transition between tied and free, the rounds cycle through several status sets and give up
 //! (the run hit the sweep cap in 4 steps). [`BlockGs::solve_on_active_sets_feasible`] solves it.
 //!
+//! A fifth pair (`sliding_tip_contact_m9_a.txt`, `_b.txt`) are the final solves of two steps just
+//! before puncture in a held-out insertion (`tools/gen_suite.py --seed 8128`, slot `scurve_y`):
+//! the 6 base rows and the tip's Coulomb contact (μ 0.3), sliding on the gel's surface, with the
+//! iterate the first polish started from. Through the stiff needle the contact's normal and
+//! tangential rows are nearly parallel once the base rows are eliminated (the reduced 3 × 3
+//! problem's eigenvalues 1.5 and 942): the sweeps crawl, and the polishes, which held a sliding
+//! contact's pair at its value, could not move it, so both steps hit the sweep cap. The pair is
+//! now tied to the normal force and the slip angle ([`ActiveSet`]).
+//!
 //! File format (`tests/data/*_m*.txt`): `m`; one line per row group
 //! `kind start len mu r0`; the `m` rows of `W`; `δ` (base rows at the column's joints);
 //! optionally the starting iterate.
@@ -54,6 +63,7 @@ fn load(name: &str) -> Problem {
         let (mu, r0): (f64, f64) = (f[3].parse().unwrap(), f[4].parse().unwrap());
         groups.push(match kind {
             1 => RowGroup::bilateral(start, len),
+            3 => RowGroup::contact(start, mu),
             4 => RowGroup::sliding(start, mu, r0),
             k => panic!("{path}: group kind {k} not expected here"),
         });
@@ -237,4 +247,126 @@ fn ties_at_the_transition_cycle_the_rounds_but_not_the_feasible_polish() {
     assert_solution(&p, &lambda, name, 1e-7);
     let r = gs.solve(&p.w, &p.delta, &mut lambda, &gs_params);
     assert!(r.converged && r.iterations <= 2, "{name}: {r:?}");
+}
+
+/// The one-contact problem solved independently of the solver: the base rows eliminated
+/// (Schur complement), then the sliding law `λ_t = μ λ_n û(θ)`, `w_n = 0`, `w_t ∥ −û` scanned
+/// over θ and bisected on the sign change of `w_t · û⊥`. Returns `(λ_n, θ)` of the sliding
+/// solution (the stick solution lies outside the disk for both problems).
+fn one_contact_slide(p: &Problem) -> (f64, f64) {
+    use nalgebra::{Matrix3, Matrix6, Matrix6x3, Vector3, Vector6};
+    let wbb = Matrix6::from_fn(|i, j| p.w[i][j]);
+    let wbc = Matrix6x3::from_fn(|i, j| p.w[i][6 + j]);
+    let wcc = Matrix3::from_fn(|i, j| p.w[6 + i][6 + j]);
+    let db = Vector6::from_fn(|i, _| p.delta[i]);
+    let dc = Vector3::from_fn(|i, _| p.delta[6 + i]);
+    let chol = wbb.cholesky().expect("W_bb positive definite");
+    let a = wcc - wbc.transpose() * chol.solve(&wbc);
+    let b = dc - wbc.transpose() * chol.solve(&db);
+    let mu = p.groups[1].mu;
+    // At angle θ: λ_n from w_n = 0, then the residual's component along û⊥ and along û.
+    let at = |th: f64| {
+        let u = Vector3::new(1.0, mu * th.cos(), mu * th.sin());
+        let n = b[0] / (a.row(0) * u)[0];
+        let r = a * (n * u) - b;
+        let perp = -r[1] * th.sin() + r[2] * th.cos();
+        let along = r[1] * th.cos() + r[2] * th.sin();
+        (n, perp, along)
+    };
+    let valid = |(n, _, along): (f64, f64, f64)| n > 0.0 && along <= 0.0;
+    let steps = 100_000;
+    let mut found = None;
+    for k in 0..steps {
+        let (t0, t1) = (
+            std::f64::consts::TAU * k as f64 / steps as f64,
+            std::f64::consts::TAU * (k + 1) as f64 / steps as f64,
+        );
+        let (f0, f1) = (at(t0), at(t1));
+        if valid(f0) && valid(f1) && f0.1.signum() != f1.1.signum() {
+            let (mut lo, mut hi) = (t0, t1);
+            for _ in 0..100 {
+                let mid = 0.5 * (lo + hi);
+                if at(mid).1.signum() == f0.1.signum() {
+                    lo = mid;
+                } else {
+                    hi = mid;
+                }
+            }
+            assert!(found.is_none(), "{}: two sliding solutions", p.m);
+            found = Some((at(lo).0, lo));
+        }
+    }
+    found.expect("a sliding solution")
+}
+
+#[test]
+fn sliding_tip_contact_before_puncture_hits_no_sweep_cap() {
+    for name in [
+        "sliding_tip_contact_m9_a.txt",
+        "sliding_tip_contact_m9_b.txt",
+    ] {
+        let p = load(name);
+        let mut gs = BlockGs::<M>::new();
+        gs.prepare(&p.w, p.m, &p.groups).unwrap();
+        let start = p.start.expect("a starting iterate");
+        let gs_params = GsParams {
+            relaxation: 1.0,
+            ..GS
+        };
+        // The sweeps alone stall at the cap.
+        let mut lambda = start;
+        let r = gs.solve(&p.w, &p.delta, &mut lambda, &gs_params);
+        assert!(!r.converged, "{name}: the sweeps alone converge: {r:?}");
+
+        let (normal, angle) = one_contact_slide(&p);
+        let mut set = Box::new(ActiveSet::<M>::new());
+        for feasible in [false, true] {
+            let mut lambda = start;
+            let done = if feasible {
+                gs.solve_on_active_sets_feasible(&p.w, &p.delta, &mut lambda, &mut set, 40)
+            } else {
+                gs.solve_on_active_sets(&p.w, &p.delta, &mut lambda, &mut set, 12)
+            };
+            assert!(
+                done,
+                "{name} (feasible {feasible}): the rounds did not finish"
+            );
+            assert_eq!(set.tied_rows(), 2, "{name}: the contact slides");
+            // The sliding law, checked on the residual directly.
+            let m = p.m;
+            let w: Vec<f64> = (0..m)
+                .map(|i| (0..m).map(|j| p.w[i][j] * lambda[j]).sum::<f64>() - p.delta[i])
+                .collect();
+            let scale = p.delta[..m].iter().fold(0.0f64, |a, x| a.max(x.abs()));
+            let mu = p.groups[1].mu;
+            let (n, t) = (lambda[6], lambda[7].hypot(lambda[8]));
+            assert!(
+                w[..7].iter().all(|x| x.abs() <= 1e-12 * scale),
+                "{name}: {w:?}"
+            );
+            assert!(
+                n > 0.0 && (t - mu * n).abs() <= 1e-12 * n,
+                "{name}: off the disk"
+            );
+            let cross = lambda[7] * w[8] - lambda[8] * w[7];
+            let dot = lambda[7] * w[7] + lambda[8] * w[8];
+            assert!(
+                cross.abs() <= 1e-9 * t * w[7].hypot(w[8]) && dot < 0.0,
+                "{name}: the slip does not oppose the force"
+            );
+            // The independent solution.
+            assert!(
+                (n - normal).abs() <= 1e-9 * normal,
+                "{name}: λ_n {n:e}, independent {normal:e}"
+            );
+            let theta = lambda[8].atan2(lambda[7]).rem_euclid(std::f64::consts::TAU);
+            assert!(
+                (theta - angle).abs() <= 1e-6,
+                "{name}: θ {theta}, independent {angle}"
+            );
+            // Gauss-Seidel confirms it at once.
+            let r = gs.solve(&p.w, &p.delta, &mut lambda, &gs_params);
+            assert!(r.converged && r.iterations <= 1, "{name}: {r:?}");
+        }
+    }
 }

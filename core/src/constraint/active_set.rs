@@ -19,7 +19,9 @@ enum Fix {
     Axial(f64),
 }
 
-/// A tied axial row: `dλ_row = c · dλ_(lat, lat+1)` (indices of the lateral rows in the free set).
+/// A tied row: `dλ_row = c · dλ_(lat, lat+1)` (indices of free variables): an axial row on its
+/// bound follows its two lateral rows; a sliding contact's tangential row follows its normal
+/// row and its slip angle.
 #[derive(Clone, Copy, Debug, Default)]
 struct Tied {
     row: u32,
@@ -27,8 +29,29 @@ struct Tied {
     c: [f64; 2],
 }
 
-/// Dense LU factor of the linearised problem of the rows a solve left free (tied sliding rows
-/// folded in) and their linear response to the 6 base rows
+/// A sliding Coulomb contact (tangential pair on its disk `|λ_t| = μ λ_n`): its pair is
+/// `λ_t = μ λ_n û(θ)`, so its free variables are the normal force and the slip angle, the latter
+/// as `φ = μ λ_n dθ` (variable `var`, a force). Its equation is the sliding law's: the pair's
+/// residual `w_t` has no component along `û⊥` (it opposes `û`). Linearised about the current
+/// pair: `dλ_t = μ û dλ_n + û⊥ φ`, and `d(w_t · û⊥) = (W dλ)_t · û⊥ + ν φ` with
+/// `ν = −(w_t · û) / (μ λ_n) ≥ 0` (the slip rate over the force: the angle's own stiffness).
+#[derive(Clone, Copy, Debug, Default)]
+struct Slide {
+    /// First row of the contact (its normal row).
+    start: u32,
+    /// Index of the angle variable among the free variables.
+    var: u32,
+    /// The pair's direction `û` when classified.
+    u: [f64; 2],
+    /// `μ λ_n` when classified (the pair's length).
+    radius: f64,
+    /// `μ`.
+    mu: f64,
+}
+
+/// Dense LU factor of the linearised problem of the rows a solve left free (tied rows folded
+/// in: axial rows on their bound, and the pairs of sliding contacts, whose slip angles are free
+/// variables of their own) and their linear response to the 6 base rows
 /// ([`BlockGs::factor_active_set`]). `M × M` storage (≈ `8 M²` bytes): keep it inside an
 /// owning struct that lives in a `static` or a `Box`.
 ///
@@ -44,12 +67,24 @@ pub struct ActiveSet<const M: usize> {
     rows: [u32; M],
     perm: [u32; M],
     tied: [Tied; M],
+    n_slides: usize,
+    slides: [Slide; M],
+    /// Free variable `k` is a sliding contact's angle (`rows[k]` is then its first tangential
+    /// row, not a row of λ).
+    angle: [bool; M],
     lu: [[f64; M]; M],
     response: [[f64; BASE]; M],
     x: [f64; M],
 }
 
 crate::zeroed::impl_zeroable!(Tied { row, lat, c });
+crate::zeroed::impl_zeroable!(Slide {
+    start,
+    var,
+    u,
+    radius,
+    mu
+});
 crate::zeroed::impl_zeroable!(ActiveSet<const M> {
     n,
     n_tied,
@@ -57,6 +92,9 @@ crate::zeroed::impl_zeroable!(ActiveSet<const M> {
     rows,
     perm,
     tied,
+    n_slides,
+    slides,
+    angle,
     lu,
     response,
     x,
@@ -82,6 +120,15 @@ impl<const M: usize> ActiveSet<M> {
                 lat: 0,
                 c: [0.0; 2],
             }; M],
+            n_slides: 0,
+            slides: [Slide {
+                start: 0,
+                var: 0,
+                u: [0.0; 2],
+                radius: 0.0,
+                mu: 0.0,
+            }; M],
+            angle: [false; M],
             lu: [[0.0; M]; M],
             response: [[0.0; BASE]; M],
             x: [0.0; M],
@@ -93,7 +140,8 @@ impl<const M: usize> ActiveSet<M> {
         self.n
     }
 
-    /// Number of tied (friction-saturated axial) rows of the last factorisation.
+    /// Number of tied rows of the last factorisation (friction-saturated axial rows, sliding
+    /// contacts' tangential rows).
     pub fn tied_rows(&self) -> usize {
         self.n_tied
     }
@@ -121,14 +169,17 @@ impl<const M: usize> BlockGs<M> {
     /// Sorts the rows by what `lambda` does with them: *free* rows (bilateral rows,
     /// unilateral/normal rows with `λ > 0`, sticking tangential rows, axial rows strictly inside
     /// their bound), *tied* rows (axial rows on their bound: `λ_a = ±(μ_n |λ_l| + r_0)` follows
-    /// the lateral rows) and *held* rows (the rest: zero, or a sliding contact's tangential
-    /// force, kept at its current value).
+    /// the lateral rows; a sliding contact's pair on its disk follows its normal force and its
+    /// slip angle, a free variable of its own, see [`Slide`]) and *held* rows (the rest: zero,
+    /// or the pair of a frictionless contact).
     fn classify(&self, lambda: &[f64; M], set: &mut ActiveSet<M>) {
         let inside = |x: f64, bound: f64| x < bound * (1.0 - 1e-9);
         set.n = 0;
         set.n_tied = 0;
+        set.n_slides = 0;
         let push = |set: &mut ActiveSet<M>, row: usize| {
             set.rows[set.n] = row as u32;
+            set.angle[set.n] = false;
             set.n += 1;
         };
         for b in &self.blocks[..self.n_blocks] {
@@ -137,11 +188,37 @@ impl<const M: usize> BlockGs<M> {
                 KIND_BILATERAL => (0..b.len as usize).for_each(|i| push(set, s + i)),
                 KIND_UNILATERAL if lambda[s] > 0.0 => push(set, s),
                 KIND_CONTACT if lambda[s] > 0.0 => {
+                    let k = set.n;
                     push(set, s);
                     let t = libm::hypot(lambda[s + 1], lambda[s + 2]);
-                    if inside(t, b.mu * lambda[s]) {
+                    let radius = b.mu * lambda[s];
+                    if inside(t, radius) {
                         push(set, s + 1);
                         push(set, s + 2);
+                    } else if radius > 0.0 && t > 0.0 {
+                        // Sliding: the angle variable, then the pair tied to (λ_n, φ).
+                        push(set, s + 1);
+                        set.angle[k + 1] = true;
+                        let u = [lambda[s + 1] / t, lambda[s + 2] / t];
+                        set.slides[set.n_slides] = Slide {
+                            start: s as u32,
+                            var: (k + 1) as u32,
+                            u,
+                            radius,
+                            mu: b.mu,
+                        };
+                        set.n_slides += 1;
+                        for (i, c) in [[b.mu * u[0], -u[1]], [b.mu * u[1], u[0]]]
+                            .into_iter()
+                            .enumerate()
+                        {
+                            set.tied[set.n_tied] = Tied {
+                                row: (s + 1 + i) as u32,
+                                lat: k as u32,
+                                c,
+                            };
+                            set.n_tied += 1;
+                        }
                     }
                 }
                 KIND_SLIDING => {
@@ -172,20 +249,23 @@ impl<const M: usize> BlockGs<M> {
     /// `K u = dδ_F`, `K = W_FF + W_FT G` where `G` gives the tied axial rows' change from their
     /// lateral rows (`dλ_a = ±μ_n λ̂_l · dλ_l`). `K` is not symmetric: dense LU with partial
     /// pivoting (`2n³/3`). Also computes the free rows' response to the 6 base rows,
-    /// `Z = K⁻¹ E_base` (rows 0..6 must be bilateral and first, as in a frame). Returns `false`
-    /// (set invalid) when `K` is numerically singular or the base rows are not free.
+    /// `Z = K⁻¹ E_base` (rows 0..6 must be bilateral and first, as in a frame). A sliding
+    /// contact's angle row is its pair's rows along `û⊥`, with the angle's stiffness `ν` (from
+    /// the residual `W λ − δ`) on its diagonal. Returns `false` (set invalid) when `K` is
+    /// numerically singular or the base rows are not free.
     pub fn factor_active_set(
         &self,
         w: &[[f64; M]; M],
+        delta: &[f64; M],
         lambda: &[f64; M],
         set: &mut ActiveSet<M>,
     ) -> bool {
         #[cfg(target_arch = "x86_64")]
         if crate::math::use_avx2() {
             // SAFETY: AVX2 support was checked at run time.
-            return unsafe { self.factor_avx2(w, lambda, set) };
+            return unsafe { self.factor_avx2(w, delta, lambda, set) };
         }
-        self.factor_inline(w, lambda, set)
+        self.factor_inline(w, delta, lambda, set)
     }
 
     #[cfg(target_arch = "x86_64")]
@@ -193,31 +273,70 @@ impl<const M: usize> BlockGs<M> {
     unsafe fn factor_avx2(
         &self,
         w: &[[f64; M]; M],
+        delta: &[f64; M],
         lambda: &[f64; M],
         set: &mut ActiveSet<M>,
     ) -> bool {
-        self.factor_inline(w, lambda, set)
+        self.factor_inline(w, delta, lambda, set)
     }
 
     #[inline(always)]
-    fn factor_inline(&self, w: &[[f64; M]; M], lambda: &[f64; M], set: &mut ActiveSet<M>) -> bool {
+    fn factor_inline(
+        &self,
+        w: &[[f64; M]; M],
+        delta: &[f64; M],
+        lambda: &[f64; M],
+        set: &mut ActiveSet<M>,
+    ) -> bool {
         set.valid = false;
         self.classify(lambda, set);
         let n = set.n;
         if n < BASE || (0..BASE).any(|i| set.rows[i] as usize != i) {
             return false;
         }
+        let m = self.m;
         let mut kmax = 0.0f64;
         for i in 0..n {
             let ri = set.rows[i] as usize;
+            // A sliding contact's angle row: its pair's rows along û⊥ (`rows[i]` is the first).
+            let slide = if set.angle[i] {
+                set.slides[..set.n_slides]
+                    .iter()
+                    .find(|sl| sl.var as usize == i)
+                    .copied()
+            } else {
+                None
+            };
+            let p = slide.map_or([0.0; 2], |sl| [-sl.u[1], sl.u[0]]);
+            let row = |c: usize| match slide {
+                Some(_) => p[0] * w[ri][c] + p[1] * w[ri + 1][c],
+                None => w[ri][c],
+            };
             let k = &mut set.lu[i];
-            for j in 0..n {
-                k[j] = w[ri][set.rows[j] as usize];
+            if slide.is_some() {
+                for j in 0..n {
+                    k[j] = row(set.rows[j] as usize);
+                }
+            } else {
+                for j in 0..n {
+                    k[j] = w[ri][set.rows[j] as usize];
+                }
+            }
+            // An angle has no row of λ: its column is its tied pair's alone.
+            for sl in &set.slides[..set.n_slides] {
+                k[sl.var as usize] = 0.0;
             }
             for t in &set.tied[..set.n_tied] {
-                let wa = w[ri][t.row as usize];
+                let wa = row(t.row as usize);
                 k[t.lat as usize] += t.c[0] * wa;
                 k[t.lat as usize + 1] += t.c[1] * wa;
+            }
+            if let Some(sl) = slide {
+                let r = |c: usize| dot(&w[c][..m], &lambda[..m]) - delta[c];
+                let slip = sl.u[0] * r(ri) + sl.u[1] * r(ri + 1);
+                // The angle's stiffness ν (≥ 0 while it slips against its force; a slip the
+                // wrong way is a status change, made between rounds).
+                k[i] += (-slip / sl.radius).max(0.0);
             }
             kmax = kmax.max(max_abs(&k[..n]));
         }
@@ -280,11 +399,27 @@ impl<const M: usize> BlockGs<M> {
         if !set.valid || !self.newton_step(w, delta, lambda, set) {
             return false;
         }
+        self.apply_step(lambda, set, 1.0);
+        true
+    }
+
+    /// `λ` moved by `alpha` times the Newton step in `set.x`: free rows along it, each sliding
+    /// contact's pair turned by its angle's step and put on its disk `μ λ_n` (the step is
+    /// linear in the angle, not in the pair), tied axial rows on their bounds.
+    fn apply_step(&self, lambda: &mut [f64; M], set: &ActiveSet<M>, alpha: f64) {
         for k in 0..set.n {
-            lambda[set.rows[k] as usize] += set.x[k];
+            if !set.angle[k] {
+                lambda[set.rows[k] as usize] += alpha * set.x[k];
+            }
+        }
+        for sl in &set.slides[..set.n_slides] {
+            let s = sl.start as usize;
+            let (sn, cs) = libm::sincos(alpha * set.x[sl.var as usize] / sl.radius);
+            let radius = sl.mu * lambda[s];
+            lambda[s + 1] = radius * (sl.u[0] * cs - sl.u[1] * sn);
+            lambda[s + 2] = radius * (sl.u[0] * sn + sl.u[1] * cs);
         }
         self.put_tied_on_bounds(lambda, set);
-        true
     }
 
     /// The Newton step of the free rows of `set` (factored) from `lambda` into `set.x`:
@@ -297,9 +432,14 @@ impl<const M: usize> BlockGs<M> {
         set: &mut ActiveSet<M>,
     ) -> bool {
         let (n, m) = (set.n, self.m);
+        let minus_residual = |r: usize| delta[r] - dot(&w[r][..m], &lambda[..m]);
         for k in 0..n {
-            let r = set.rows[k] as usize;
-            set.x[k] = delta[r] - dot(&w[r][..m], &lambda[..m]);
+            set.x[k] = minus_residual(set.rows[k] as usize);
+        }
+        // A sliding contact's angle: its pair's residual along û⊥.
+        for sl in &set.slides[..set.n_slides] {
+            let (k, t) = (sl.var as usize, sl.start as usize + 1);
+            set.x[k] = -sl.u[1] * set.x[k] + sl.u[0] * minus_residual(t + 1);
         }
         lu_solve(&set.lu, &set.perm, n, &mut set.x);
         set.x[..n].iter().all(|v| v.is_finite())
@@ -333,7 +473,7 @@ impl<const M: usize> BlockGs<M> {
         let mut seen = [None; 2];
         let mut previous = (f64::INFINITY, [0.0; M]);
         for round in 0..max_rounds {
-            if !(self.factor_active_set(w, lambda, set)
+            if !(self.factor_active_set(w, delta, lambda, set)
                 && self.refine_on_active_set(w, delta, lambda, set))
             {
                 return false;
@@ -387,10 +527,10 @@ impl<const M: usize> BlockGs<M> {
     /// its full steps overshoot (a freed axial force several times past its bound) and its
     /// statuses cycle. Short steps cannot overshoot; they cost a round per status change.
     ///
-    /// Not for sliding Coulomb contacts: their tangential pair is held (it has no Newton
-    /// direction), so a normal force that falls shrinks the disk under it and stops every step
-    /// at once; the rounds then run out and Gauss-Seidel settles the contact (see
-    /// `docs/architecture.md`, "A feasible polish where the rounds cycle").
+    /// A sliding Coulomb contact's pair stays on its disk through a step (it is tied to the
+    /// normal force and the slip angle, see [`ActiveSet`]): only its normal force can stop a
+    /// step (the contact then opens). The angle is nonlinear in the pair, so with a sliding
+    /// contact a full step ends the method only once it is below round-off.
     pub fn solve_on_active_sets_feasible(
         &self,
         w: &[[f64; M]; M],
@@ -399,16 +539,18 @@ impl<const M: usize> BlockGs<M> {
         set: &mut ActiveSet<M>,
         max_rounds: usize,
     ) -> bool {
-        let m = self.m;
         for _ in 0..max_rounds {
-            if !(self.factor_active_set(w, lambda, set) && self.newton_step(w, delta, lambda, set))
+            if !(self.factor_active_set(w, delta, lambda, set)
+                && self.newton_step(w, delta, lambda, set))
             {
                 return false;
             }
             // The free rows' Newton step as a direction over all rows (tied and held: 0).
             let (n, mut dir) = (set.n, [0.0; M]);
             for k in 0..n {
-                dir[set.rows[k] as usize] = set.x[k];
+                if !set.angle[k] {
+                    dir[set.rows[k] as usize] = set.x[k];
+                }
             }
             let tied = |row: usize| set.tied[..set.n_tied].iter().any(|t| t.row as usize == row);
             // The longest step every block admits, and the block that stops it.
@@ -419,7 +561,16 @@ impl<const M: usize> BlockGs<M> {
                 if b.kind == KIND_SLIDING && tied(s + 2) {
                     continue;
                 }
-                let excess = |a: f64| block_excess(b, lambda, &dir, a);
+                // A sliding contact's pair stays on its disk (`apply_step`): only its normal
+                // force can leave its set.
+                let sliding = b.kind == KIND_CONTACT && tied(s + 1);
+                let excess = |a: f64| {
+                    if sliding {
+                        -(lambda[s] + a * dir[s]) - 1e-12 * libm::fabs(lambda[s])
+                    } else {
+                        block_excess(b, lambda, &dir, a)
+                    }
+                };
                 if excess(alpha) <= 0.0 {
                     continue;
                 }
@@ -437,14 +588,24 @@ impl<const M: usize> BlockGs<M> {
                 alpha = lo;
                 blocking = Some(k);
             }
-            for r in 0..m {
-                lambda[r] += alpha * dir[r];
-            }
-            self.put_tied_on_bounds(lambda, set);
+            self.apply_step(lambda, set, alpha);
             match blocking {
-                Some(k) => self.block_on_boundary(&self.blocks[k], lambda, &dir),
+                Some(k) => {
+                    let b = &self.blocks[k];
+                    let s = b.start as usize;
+                    if b.kind == KIND_CONTACT && tied(s + 1) {
+                        // A sliding contact whose normal force reached zero opens.
+                        lambda[s..s + 3].fill(0.0);
+                    } else {
+                        self.block_on_boundary(b, lambda, &dir);
+                    }
+                }
                 None => {
-                    if self.correct_statuses(w, delta, lambda, true).is_none() {
+                    // A sliding contact's angle is nonlinear in the pair: a full step lands on
+                    // the solution only once it is below round-off.
+                    let settled = set.n_slides == 0
+                        || max_abs(&set.x[..set.n]) <= 1e-12 * max_abs(&lambda[..self.m]);
+                    if self.correct_statuses(w, delta, lambda, true).is_none() && settled {
                         return true;
                     }
                 }
@@ -453,9 +614,13 @@ impl<const M: usize> BlockGs<M> {
         false
     }
 
-    /// Every tied axial row of `set` exactly on its bound `±(μ_n |λ_l| + r_0)`.
+    /// Every tied axial row of `set` exactly on its bound `±(μ_n |λ_l| + r_0)` (a sliding
+    /// contact's tied pair, whose `lat + 1` is its angle, is [`Self::apply_step`]'s).
     fn put_tied_on_bounds(&self, lambda: &mut [f64; M], set: &ActiveSet<M>) {
         for t in &set.tied[..set.n_tied] {
+            if set.angle[t.lat as usize + 1] {
+                continue;
+            }
             let a = t.row as usize;
             let l = set.rows[t.lat as usize] as usize;
             let (mu, r0) = self.sliding_law(a);
@@ -570,8 +735,17 @@ impl<const M: usize> BlockGs<M> {
                 } else if b.kind == KIND_CONTACT {
                     let t = libm::hypot(lambda[s + 1], lambda[s + 2]);
                     let bound = b.mu * lambda[s];
-                    (t > bound * (1.0 + 1e-9))
-                        .then(|| (w[s + 1][s + 1] * (t - bound), Fix::Scale(bound / t)))
+                    if t > bound * (1.0 + 1e-9) {
+                        Some((w[s + 1][s + 1] * (t - bound), Fix::Scale(bound / t)))
+                    } else if bound > 0.0 && t >= bound * (1.0 - 1e-9) {
+                        // Sliding: the slip must run against the force (`w_t · û ≤ 0`), else
+                        // the pair sticks, just inside its disk.
+                        let slip =
+                            (lambda[s + 1] * residual(s + 1) + lambda[s + 2] * residual(s + 2)) / t;
+                        (slip > tol).then_some((slip, Fix::Scale(1.0 - 1e-6)))
+                    } else {
+                        None
+                    }
                 } else {
                     None
                 }
@@ -626,7 +800,9 @@ impl<const M: usize> BlockGs<M> {
                 acc += z[c] * d_base[c];
             }
             du[k] = acc;
-            out[set.rows[k] as usize] += acc;
+            if !set.angle[k] {
+                out[set.rows[k] as usize] += acc;
+            }
         }
         for t in &set.tied[..set.n_tied] {
             let l = t.lat as usize;

@@ -186,7 +186,7 @@ impl<const M: usize, const N: usize> Controller<M, N> {
         // A status changed during the confirmation: factor again at the final answer.
         if r2.iterations > 2 {
             self.gs
-                .factor_active_set(&frame.w, &self.lambda.base, &mut self.set);
+                .factor_active_set(&frame.w, &self.delta, &self.lambda.base, &mut self.set);
         }
         self.set_valid = self.set.is_valid();
         SolveReport {
@@ -486,9 +486,9 @@ impl<const M: usize, const N: usize> Controller<M, N> {
         if self.gs_full.prepare_frame(frame).is_err() {
             return false;
         }
-        let ok = self
-            .gs_full
-            .factor_active_set(&frame.w, &self.lambda.base, &mut self.set);
+        let ok =
+            self.gs_full
+                .factor_active_set(&frame.w, &self.delta, &self.lambda.base, &mut self.set);
         self.set_valid = ok && self.set.is_valid();
         self.set_valid
     }
