@@ -70,8 +70,9 @@ enum Command {
     Suite(SuiteArgs),
     /// Two runs of the suite scene by scene (the `suite.json` of two `needle suite` runs, e.g.
     /// before and after a change of configuration): targets gained and lost, scenes moved by
-    /// more than a tolerance on e_mean, e_max or e_final, scenes equal in every compared field,
-    /// and each run's means and worst cases (exit 4 with `--fail-on-loss` when a target was
+    /// more than a tolerance on e_mean, e_max, e_final or smallest clearance, scenes that came
+    /// closer to an obstacle, scenes equal in every compared field, and each run's means and
+    /// worst cases (exit 4 with `--fail-on-loss` when a target was
     /// lost, 2 when a file cannot be compared).
     Compare(CompareArgs),
     /// The benchmark report: both scenes under both controllers plus the mesh, δq, blend
@@ -191,7 +192,8 @@ struct CompareArgs {
     /// The controller compared (the suite's `--controllers` name).
     #[arg(long, default_value = "default")]
     controller: String,
-    /// A scene moves when e_mean, e_max or e_final changes by more than this [mm].
+    /// A scene moves when e_mean, e_max, e_final or its smallest clearance changes by more than
+    /// this [mm].
     #[arg(long, default_value_t = 0.05)]
     tolerance: f64,
     /// Exit 4 when a scene that reached its target before does not after.

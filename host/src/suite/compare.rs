@@ -1,7 +1,8 @@
 //! `needle compare BEFORE AFTER`: two runs of the suite (`suite.json`, from `needle suite`)
 //! scene by scene, for one controller — which targets were gained or lost, which scenes moved
-//! by more than a tolerance on e_mean, e_max or e_final, how many are equal in every compared
-//! field, and each run's means and worst cases. The question every configuration change asks
+//! by more than a tolerance on e_mean, e_max, e_final or their smallest obstacle clearance, which
+//! came closer to an obstacle by more than it, how many are equal in every compared field, and
+//! each run's means and worst cases. The question every configuration change asks
 //! of the suite ("one default configuration, every scene"), answered the same way each time.
 //!
 //! The files are read as JSON values, not as [`super::SuiteRow`]s: a `suite.json` written by an
@@ -166,9 +167,12 @@ pub struct Comparison {
     pub lost: Vec<String>,
     /// Reached after, not before.
     pub gained: Vec<String>,
-    /// Scenes whose e_mean, e_max or e_final moved by more than the tolerance, or whose
-    /// outcome changed, one line each.
+    /// Scenes whose e_mean, e_max, e_final or smallest clearance moved by more than the
+    /// tolerance, or whose outcome changed, one line each.
     pub moved: Vec<String>,
+    /// Scenes whose smallest clearance fell by more than the tolerance (a scene without an
+    /// obstacle before and with a finite clearance after counts), whatever their errors did.
+    pub closer: Vec<String>,
     /// Scenes in one file only.
     pub unmatched: Vec<String>,
     /// The whole report, for the terminal (Markdown).
@@ -176,7 +180,8 @@ pub struct Comparison {
 }
 
 /// Compares `after` with `before` (scenes of one controller, from [`load`]); a scene moves
-/// when an error changes by more than `tolerance` mm (NaN on one side and not the other counts).
+/// when an error or its smallest clearance changes by more than `tolerance` mm (NaN on one side
+/// and not the other counts; so does a clearance finite on one side only).
 pub fn compare(
     before: &BTreeMap<String, SceneFigures>,
     after: &BTreeMap<String, SceneFigures>,
@@ -209,7 +214,16 @@ pub fn compare(
         if a.reached() && !b.reached() {
             c.gained.push(name.clone());
         }
-        if a.outcome != b.outcome || (0..3).any(moved_by) {
+        let (cb, ca) = (b.min_clearance_mm, a.min_clearance_mm);
+        let clearance_moved = if cb.is_finite() && ca.is_finite() {
+            (ca - cb).abs() > tolerance
+        } else {
+            !same(ca, cb)
+        };
+        if clearance_moved && !(ca > cb) {
+            c.closer.push(name.clone());
+        }
+        if a.outcome != b.outcome || (0..3).any(moved_by) || clearance_moved {
             let cell = |k: usize| format!("{} → {}", mm(b.errors[k]), mm(a.errors[k]));
             let _ = writeln!(
                 rows,
@@ -232,7 +246,7 @@ pub fn compare(
     let _ = writeln!(
         t,
         "{} of {} scenes equal in every compared field; {} moved by more than {tolerance} mm \
-         on e_mean, e_max or e_final, or changed outcome\n",
+         on e_mean, e_max, e_final or smallest clearance, or changed outcome\n",
         c.equal,
         c.common,
         c.moved.len()
@@ -255,6 +269,11 @@ pub fn compare(
     };
     let _ = writeln!(t, "- targets lost: {}", list(&c.lost));
     let _ = writeln!(t, "- targets gained: {}", list(&c.gained));
+    let _ = writeln!(
+        t,
+        "- closer to an obstacle by more than {tolerance} mm: {}",
+        list(&c.closer)
+    );
     if !c.unmatched.is_empty() {
         let _ = writeln!(t, "- in one file only: {}", c.unmatched.join(", "));
     }
@@ -420,6 +439,54 @@ mod tests {
             0.05,
         );
         assert_eq!((c.common, c.gained.len()), (1, 1));
+    }
+
+    /// A scene whose errors held but which came closer to its obstacle is a moved scene and is
+    /// named as closer; one that moved away is moved, not closer; a change within the tolerance
+    /// is neither; an obstacle appearing (clearance finite after, none before) is closer.
+    #[test]
+    fn a_scene_closer_to_its_obstacle_is_named_though_its_errors_held() {
+        let dir = temp_dir("closer");
+        let e = [0.1, 0.2, 0.01];
+        let before = write(
+            &dir,
+            "before.json",
+            &[
+                row("closer", "default", "reached", e, Some(0.5)),
+                row("away", "default", "reached", e, Some(0.2)),
+                row("within", "default", "reached", e, Some(0.5)),
+                row("appears", "default", "reached", e, None),
+            ],
+        );
+        let after = write(
+            &dir,
+            "after.json",
+            &[
+                row("closer", "default", "reached", e, Some(0.2)),
+                row("away", "default", "reached", e, Some(0.5)),
+                row("within", "default", "reached", e, Some(0.46)),
+                row("appears", "default", "reached", e, Some(1.0)),
+            ],
+        );
+        let c = compare(
+            &load(&before, "default").unwrap(),
+            &load(&after, "default").unwrap(),
+            0.05,
+        );
+        assert_eq!(c.moved, ["appears", "away", "closer"], "{}", c.text);
+        assert_eq!(c.closer, ["appears", "closer"], "{}", c.text);
+        assert_eq!(c.equal, 0);
+        assert!(
+            c.text.contains("| `closer` | reached → reached | 0.100 → 0.100 | 0.200 → 0.200 | 0.010 → 0.010 | 0.500 → 0.200 |"),
+            "{}",
+            c.text
+        );
+        assert!(
+            c.text
+                .contains("- closer to an obstacle by more than 0.05 mm: `appears`, `closer`"),
+            "{}",
+            c.text
+        );
     }
 
     /// A file that is not a suite's JSON is refused naming the file, and a malformed row its
