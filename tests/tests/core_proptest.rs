@@ -1,7 +1,7 @@
 //! Property tests: random and hostile frames never panic the core — they are rejected with an
 //! error — and valid random SPD frames solve to finite forces.
 
-use needle_core::constraint::{BlockGs, GsParams};
+use needle_core::constraint::{ActiveSet, BlockGs, GsParams};
 use needle_core::payload::{GroupKind, RowGroup, ValidationError};
 use needle_core::synthetic::random_frame;
 use needle_core::{Command, ComplianceFrame, Controller, DhChain, InverseParams, StepError};
@@ -217,6 +217,125 @@ proptest! {
                 }
                 _ => {}
             }
+        }
+    }
+}
+
+/// Every group's law on the residual `w = W λ − δ` directly, to `tol` (absolute, on `w`):
+/// bilateral rows closed; a contact open (`w_n ≥ 0`), or pressed (`w_n = 0`) and sticking
+/// (`w_t = 0` inside the disk) or sliding against its force (`w_t` opposite to `λ_t` on the disk
+/// edge); a sliding point's lateral rows closed and its axial force inside its bound and still,
+/// or on it and slipping against it.
+fn laws_hold(frame: &ComplianceFrame<M>, lambda: &[f64; M], tol: f64) -> Result<(), String> {
+    let m = frame.m as usize;
+    let w: Vec<f64> = (0..m)
+        .map(|i| (0..m).map(|j| frame.w[i][j] * lambda[j]).sum::<f64>() - frame.delta_free[i])
+        .collect();
+    let edge = |x: f64, bound: f64| x >= bound * (1.0 - 1e-7);
+    for g in frame.used_groups() {
+        let s = g.start as usize;
+        let fail = |what: &str| {
+            Err(format!(
+                "group at row {s}: {what}; λ {:?}, w {:?}",
+                &lambda[s..s + g.len as usize],
+                &w[s..s + g.len as usize]
+            ))
+        };
+        match GroupKind::from_raw(g.kind) {
+            Some(GroupKind::Bilateral) => {
+                if w[s..s + g.len as usize].iter().any(|x| x.abs() > tol) {
+                    return fail("bilateral row open");
+                }
+            }
+            Some(GroupKind::Contact) => {
+                let (n, t) = (lambda[s], lambda[s + 1].hypot(lambda[s + 2]));
+                if n < 0.0 || t > g.mu * n * (1.0 + 1e-9) {
+                    return fail("force outside its cone");
+                }
+                if n == 0.0 {
+                    if w[s] < -tol {
+                        return fail("closed but penetrating");
+                    }
+                    continue;
+                }
+                if w[s].abs() > tol {
+                    return fail("pressed but not closed");
+                }
+                let wt = w[s + 1].hypot(w[s + 2]);
+                if !edge(t, g.mu * n) {
+                    if wt > tol {
+                        return fail("sticking but slipping");
+                    }
+                } else {
+                    let (u1, u2) = (lambda[s + 1] / t, lambda[s + 2] / t);
+                    let along = u1 * w[s + 1] + u2 * w[s + 2];
+                    let across = u1 * w[s + 2] - u2 * w[s + 1];
+                    if along > tol || across.abs() > tol {
+                        return fail("sliding, but not against its force");
+                    }
+                }
+            }
+            Some(GroupKind::Sliding) => {
+                if w[s].abs() > tol || w[s + 1].abs() > tol {
+                    return fail("lateral row open");
+                }
+                let bound = g.mu * lambda[s].hypot(lambda[s + 1]) + g.r0;
+                let a = lambda[s + 2];
+                if a.abs() > bound * (1.0 + 1e-9) {
+                    return fail("axial force beyond its bound");
+                }
+                if !edge(a.abs(), bound) {
+                    if w[s + 2].abs() > tol {
+                        return fail("axial force inside its bound but slipping");
+                    }
+                } else if a.signum() * w[s + 2] > tol {
+                    return fail("axial force on its bound, slipping with it");
+                }
+            }
+            _ => {}
+        }
+    }
+    Ok(())
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig {
+        cases: 256,
+        failure_persistence: None,
+        ..ProptestConfig::default()
+    })]
+
+    /// The active-set methods that polish a slow solve (`solve_on_active_sets`, the first
+    /// polish; `solve_on_active_sets_feasible`, the later ones) on random frames with a tip
+    /// contact and sliding points, from a rough Gauss-Seidel iterate: they never leave a
+    /// non-finite force, and whenever one reports it finished, its answer meets every group's
+    /// law on the residual directly and Gauss-Seidel confirms it in at most two sweeps.
+    #[test]
+    fn active_set_methods_finish_only_on_solutions(seed in any::<u64>(), m in 9usize..=M,
+                                                   rough in 0u32..40, feasible in any::<bool>()) {
+        let mut frame = boxed_frame();
+        random_frame(&mut frame, &DhChain::rv1a(), &Q, m, seed, true);
+        let mut gs = Box::new(BlockGs::<M>::new());
+        gs.prepare_frame(&frame).expect("valid");
+        let delta = frame.delta_free;
+        let mut lambda = [0.0; M];
+        gs.solve(&frame.w, &delta, &mut lambda, &GsParams { max_iterations: rough, ..GsParams::default() });
+        let mut set = needle_core::boxed_zeroed::<ActiveSet<M>>();
+        let done = if feasible {
+            gs.solve_on_active_sets_feasible(&frame.w, &delta, &mut lambda, &mut set, 60)
+        } else {
+            gs.solve_on_active_sets(&frame.w, &delta, &mut lambda, &mut set, 30)
+        };
+        let m = frame.m as usize;
+        prop_assert!(lambda[..m].iter().all(|x| x.is_finite()));
+        if done {
+            let scale = delta[..m].iter().fold(0.0f64, |a, x| a.max(x.abs()));
+            let tol = 1e-9 * scale;
+            if let Err(e) = laws_hold(&frame, &lambda, tol) {
+                prop_assert!(false, "finished on a non-solution (feasible {}): {}", feasible, e);
+            }
+            let rep = gs.solve(&frame.w, &delta, &mut lambda, &GsParams { max_iterations: 10, ..GsParams::default() });
+            prop_assert!(rep.converged && rep.iterations <= 2, "{:?}", rep);
         }
     }
 }

@@ -396,7 +396,7 @@ impl<const M: usize> BlockGs<M> {
         lambda: &mut [f64; M],
         set: &mut ActiveSet<M>,
     ) -> bool {
-        if !set.valid || !self.newton_step(w, delta, lambda, set) {
+        if !set.valid || self.newton_step(w, delta, lambda, set).is_none() {
             return false;
         }
         self.apply_step(lambda, set, 1.0);
@@ -423,14 +423,15 @@ impl<const M: usize> BlockGs<M> {
     }
 
     /// The Newton step of the free rows of `set` (factored) from `lambda` into `set.x`:
-    /// `K⁻¹ (δ_F − (W λ)_F)`; `false` when it is not finite.
+    /// `K⁻¹ (δ_F − (W λ)_F)`; the largest residual of those rows before the step (`None` when
+    /// the step is not finite).
     fn newton_step(
         &self,
         w: &[[f64; M]; M],
         delta: &[f64; M],
         lambda: &[f64; M],
         set: &mut ActiveSet<M>,
-    ) -> bool {
+    ) -> Option<f64> {
         let (n, m) = (set.n, self.m);
         let minus_residual = |r: usize| delta[r] - dot(&w[r][..m], &lambda[..m]);
         for k in 0..n {
@@ -441,8 +442,9 @@ impl<const M: usize> BlockGs<M> {
             let (k, t) = (sl.var as usize, sl.start as usize + 1);
             set.x[k] = -sl.u[1] * set.x[k] + sl.u[0] * minus_residual(t + 1);
         }
+        let residual = max_abs(&set.x[..n]);
         lu_solve(&set.lu, &set.perm, n, &mut set.x);
-        set.x[..n].iter().all(|v| v.is_finite())
+        set.x[..n].iter().all(|v| v.is_finite()).then_some(residual)
     }
 
     /// Newton's method on the active set with the statuses updated between steps (a
@@ -452,8 +454,8 @@ impl<const M: usize> BlockGs<M> {
     /// ([`Self::correct_statuses`]): a unilateral or normal force pulled below zero is set to
     /// zero, a tangential force pushed out of its friction disk back onto it, a closed
     /// unilateral row that the residual says must push is opened, a free axial force carried
-    /// beyond its bound is put on it (tied), a tied one whose slip runs the wrong way is untied. Stops when a round changes no status and its Newton step is below round-off
-    /// (`true`), or after `max_rounds` rounds or on a singular set (`false`; `lambda` holds the
+    /// beyond its bound is put on it (tied), a tied one whose slip runs the wrong way is untied.
+    /// Stops when a round changes no status and its Newton step is below round-off (`true`), or after `max_rounds` rounds or on a singular set (`false`; `lambda` holds the
     /// last iterate, finite). Gauss-Seidel from a converged answer confirms it in one sweep.
     ///
     /// One Newton step alone (what a single refine makes) lands on the solution only when the
@@ -529,8 +531,8 @@ impl<const M: usize> BlockGs<M> {
     ///
     /// A sliding Coulomb contact's pair stays on its disk through a step (it is tied to the
     /// normal force and the slip angle, see [`ActiveSet`]): only its normal force can stop a
-    /// step (the contact then opens). The angle is nonlinear in the pair, so with a sliding
-    /// contact a full step ends the method only once it is below round-off.
+    /// step (the contact then opens). Tied rows are nonlinear in the free ones, so with any
+    /// tied row a full step ends the method only once it is below round-off.
     pub fn solve_on_active_sets_feasible(
         &self,
         w: &[[f64; M]; M],
@@ -539,12 +541,16 @@ impl<const M: usize> BlockGs<M> {
         set: &mut ActiveSet<M>,
         max_rounds: usize,
     ) -> bool {
+        // A residual this small against the problem's scale is round-off (as in
+        // `correct_statuses`).
+        let tol = 1e-10 * max_abs(&delta[..self.m]);
         for _ in 0..max_rounds {
-            if !(self.factor_active_set(w, delta, lambda, set)
-                && self.newton_step(w, delta, lambda, set))
-            {
+            if !self.factor_active_set(w, delta, lambda, set) {
                 return false;
             }
+            let Some(residual) = self.newton_step(w, delta, lambda, set) else {
+                return false;
+            };
             // The free rows' Newton step as a direction over all rows (tied and held: 0).
             let (n, mut dir) = (set.n, [0.0; M]);
             for k in 0..n {
@@ -601,10 +607,10 @@ impl<const M: usize> BlockGs<M> {
                     }
                 }
                 None => {
-                    // A sliding contact's angle is nonlinear in the pair: a full step lands on
-                    // the solution only once it is below round-off.
-                    let settled = set.n_slides == 0
-                        || max_abs(&set.x[..set.n]) <= 1e-12 * max_abs(&lambda[..self.m]);
+                    // A tied row is nonlinear in the free ones (an axial bound in the lateral
+                    // forces, a sliding pair in its angle): a full step lands on the solution
+                    // only from an iterate whose rows were solved already, up to round-off.
+                    let settled = set.n_tied == 0 || residual <= tol;
                     if self.correct_statuses(w, delta, lambda, true).is_none() && settled {
                         return true;
                     }
