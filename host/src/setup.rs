@@ -262,6 +262,7 @@ pub fn step_params(scene: &Scene) -> StepParams {
             max_lead: scene.insertion.max_lead,
         },
         dt: scene.robot.dt,
+        max_base_step: scene.inverse.max_base_step,
     }
 }
 

@@ -50,3 +50,49 @@ fn needle_thin_held_at_its_clearance_margin_is_stopped_as_blocked() {
     assert!(s.steps < 617, "ran to the end: {} steps", s.steps);
     assert!(s.stopped.as_deref().is_some_and(|m| m.contains("blocked")));
 }
+
+/// The clearance rows behind the needle point nearest to an obstacle reach as far as the needle
+/// may advance in one step (`inverse.max_base_step`): before, they stopped at 4.5 mm whatever the
+/// trust region, so with a larger one a needle point could reach the nearest point's place
+/// within a step unseen by any row. At the default 5 mm (and the benchmarks' 3 mm) the rows are
+/// the three they were; at 9 mm six, every 1.5 mm; without a trust region as many as the frame
+/// holds.
+#[test]
+#[ignore = "two insertions (release, ~1 s): run with --include-ignored"]
+fn clearance_rows_behind_the_nearest_point_reach_the_trust_region() {
+    use needle_bridge::InProcess;
+    use needle_host::setup::Setup;
+    use needle_host::step::Pipeline;
+    use needle_host::step::observe::rows_behind;
+    assert_eq!(
+        [3.0, 5.0, 9.0, f64::INFINITY].map(rows_behind),
+        [3, 3, 6, needle_core::payload::NCLEAR - 1]
+    );
+    for (max_base_step, rows) in [(5.0, 3), (9.0, 6)] {
+        let scene = Scene::builtin("simple")
+            .expect("the simple scene")
+            .with_overrides(&[
+                ("gel.box.nodes".into(), "600".into()),
+                ("inverse.max_base_step".into(), format!("{max_base_step}")),
+            ])
+            .expect("overrides");
+        let s = Setup::build(&scene).expect("set-up");
+        assert_eq!(s.params.max_base_step, max_base_step);
+        let (mut world, params) = (s.world, s.params);
+        assert_eq!(world.obstacles.len(), 1, "one obstacle");
+        let mut core = InProcess::new(s.robot, s.inverse);
+        let mut pipeline = Pipeline::new(&world);
+        let mut most = 0;
+        for _ in 0..s.plan.steps {
+            pipeline
+                .step(&mut world, &params, &mut core)
+                .expect("a step");
+            most = most.max(pipeline.frame().clearances());
+        }
+        assert_eq!(
+            most,
+            1 + rows,
+            "max_base_step {max_base_step}: the nearest point's row and {rows} behind it"
+        );
+    }
+}

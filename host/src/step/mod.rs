@@ -298,7 +298,7 @@ impl<const N: usize> Pipeline<N> {
         // deferred solves are exact; otherwise the free motion is finished now and the rows
         // built again from the whole free positions, the near-only columns dropped, and the
         // next steps solve whole until a frame lies on the near rows again.
-        let near = !world.gel.defers_far() || self.frame_is_near(world, c);
+        let near = !world.gel.defers_far() || self.frame_is_near(world, c, params);
         self.defer_next = near;
         if self.far_pending && !near {
             world
@@ -388,7 +388,7 @@ impl<const N: usize> Pipeline<N> {
 
     /// Whether every gel point this step's frame uses (the rows' points, the observed ones)
     /// lies on dofs the deferred solves give exactly.
-    fn frame_is_near(&self, world: &World<N>, c: f64) -> bool {
+    fn frame_is_near(&self, world: &World<N>, c: f64, params: &StepParams) -> bool {
         let gel = &world.gel;
         let near = |map: &PointMap| {
             map.used()
@@ -396,7 +396,7 @@ impl<const N: usize> Pipeline<N> {
                 .all(|&(b, _)| (b..b + 3).all(|d| gel.is_deferral_exact(d)))
         };
         let observed = observe::observations(world, &self.free, c);
-        let clearances = observe::clearance_observations(world, &self.free);
+        let clearances = observe::clearance_observations(world, &self.free, params.max_base_step);
         self.set.gel.points.iter().all(|p| near(&p.map))
             && (observed.iter())
                 .chain(clearances.iter().flat_map(|o| o.obstacle.iter()))
@@ -466,7 +466,7 @@ impl<const N: usize> Pipeline<N> {
             .map_err(SimError::in_compliance(Body::Gel))?;
         let observations = observe::observations(world, &self.free, c);
         self.set.fill_frame(&observations, &mut self.frame);
-        let clearances = observe::clearance_observations(world, &self.free);
+        let clearances = observe::clearance_observations(world, &self.free, params.max_base_step);
         self.set.fill_clearances(&clearances, &mut self.frame);
         observe::fill_header(
             &mut self.frame,

@@ -52,26 +52,43 @@ pub fn observations<const N: usize>(
     [tip, dir, target, tangent, entry]
 }
 
-/// How far behind the needle point nearest to an obstacle (towards the base, along the
-/// needle) the points of its extra clearance rows lie [mm]. A row holds its needle point fixed
-/// in the needle; when the needle advances along itself, another point comes where the nearest
-/// one was, and the row of the nearest point alone then over-predicts the clearance (by 0.21 mm
-/// for an advance of 4.3 mm past an obstacle, `docs/benchmark.md`). Advances per step reach the
-/// trust region's 5 mm; the distance to a sphere or a convex surface is convex, so each row's
-/// linear model under-predicts its point's clearance, and the rows of these points bound the
-/// needle's clearance over such an advance.
-const BEHIND_MM: [f64; 3] = [1.5, 3.0, 4.5];
+/// The spacing of the extra clearance rows behind the needle point nearest to an obstacle
+/// (towards the base, along the needle) [mm]. A row holds its needle point fixed in the needle;
+/// when the needle advances along itself, another point comes where the nearest one was, and
+/// the row of the nearest point alone then over-predicts the clearance (by 0.21 mm for an
+/// advance of 4.3 mm past an obstacle, `docs/benchmark.md`). The distance to a sphere or a
+/// convex surface is convex, so each row's linear model under-predicts its point's clearance,
+/// and rows every 1.5 mm over the step's largest advance bound the needle's clearance over it.
+const BEHIND_SPACING_MM: f64 = 1.5;
+
+/// The fewest rows behind each nearest point (1.5, 3.0 and 4.5 mm: the default trust region
+/// of 5 mm, and the benchmark scenes' 3 mm).
+const BEHIND_MIN_ROWS: usize = 3;
+
+/// How many rows behind each nearest point cover an advance of `max_base_step` [mm] per step:
+/// the multiples of [`BEHIND_SPACING_MM`] within it, at least [`BEHIND_MIN_ROWS`], at most
+/// what the frame holds besides one nearest point (`NCLEAR − 1`, also without a trust region).
+pub fn rows_behind(max_base_step: f64) -> usize {
+    let most = NCLEAR - 1;
+    if !max_base_step.is_finite() {
+        return most;
+    }
+    let within = (max_base_step / BEHIND_SPACING_MM + 1e-9).floor().max(0.0) as usize;
+    within.clamp(BEHIND_MIN_ROWS, most)
+}
 
 /// The obstacles the controller sees: for each obstacle, the point of the inserted needle
 /// nearest to it at the start of the step (the needle within `depth` of the tip, as
 /// [`World::clearances`] measures) and the obstacle's point (a sphere's centre; a mesh's
 /// closest surface point, through its triangle's vertices), observed after the free motion;
 /// the `NCLEAR` nearest obstacles when there are more. Then, as the capacity allows, the rows
-/// of the inserted needle points [`BEHIND_MM`] behind each nearest point, lowest clearance
-/// first. None before puncture (nothing is inserted).
+/// of the inserted needle points every [`BEHIND_SPACING_MM`] behind each nearest point over the
+/// step's largest advance `max_base_step` ([`rows_behind`]), lowest clearance first. None
+/// before puncture (nothing is inserted).
 pub fn clearance_observations<const N: usize>(
     world: &World<N>,
     free: &FreePositions,
+    max_base_step: f64,
 ) -> Vec<ClearanceObservation> {
     let depth = world.depth();
     if !world.punctured || world.obstacles.is_empty() || depth <= 0.0 {
@@ -106,7 +123,8 @@ pub fn clearance_observations<const N: usize>(
     };
     let behind = |k: usize, f: f64| {
         let nearest = arc[k] * (1.0 - f) + arc[k + 1] * f;
-        BEHIND_MM.iter().filter_map(move |s| point_at(nearest + s))
+        (1..=rows_behind(max_base_step))
+            .filter_map(move |i| point_at(nearest + i as f64 * BEHIND_SPACING_MM))
     };
     let mut extra: Vec<(f64, ClearanceObservation)> = Vec::new();
     let mut seen: Vec<(f64, ClearanceObservation)> = world

@@ -166,6 +166,11 @@ pub struct StepParams {
     /// Control period: time between two steps [s] (carried in the frame: the core bounds the
     /// joint steps by `speed limit × dt`).
     pub dt: f64,
+    /// The controller's trust region on the needle base per step [mm]
+    /// (`inverse.max_base_step`; `+∞`: none): how far the needle may advance along itself in one
+    /// step, so how far behind the needle point nearest to an obstacle its clearance rows reach
+    /// ([`super::observe::clearance_observations`]).
+    pub max_base_step: f64,
 }
 
 impl Default for StepParams {
@@ -174,6 +179,7 @@ impl Default for StepParams {
             interaction: Interaction::default(),
             insertion: Insertion::default(),
             dt: 0.04,
+            max_base_step: 5.0,
         }
     }
 }
