@@ -263,6 +263,16 @@ fn one_contact_slide(p: &Problem) -> (f64, f64) {
     let chol = wbb.cholesky().expect("W_bb positive definite");
     let a = wcc - wbc.transpose() * chol.solve(&wbc);
     let b = dc - wbc.transpose() * chol.solve(&db);
+    // What makes the sweeps crawl: the reduced problem's eigenvalues, and how far its softest
+    // direction lies from the contact's normal (printed with --nocapture; docs/architecture.md).
+    let eig = a.symmetric_eigen();
+    let soft = eig.eigenvalues.imin();
+    let normal_angle = eig.eigenvectors.column(soft)[0].abs().acos().to_degrees();
+    let mut values: Vec<f64> = eig.eigenvalues.iter().copied().collect();
+    values.sort_by(f64::total_cmp);
+    eprintln!(
+        "reduced contact problem: eigenvalues {values:.1?}, softest direction {normal_angle:.0}° from the normal"
+    );
     let mu = p.groups[1].mu;
     // At angle θ: λ_n from w_n = 0, then the residual's component along û⊥ and along û.
     let at = |th: f64| {
