@@ -18,8 +18,8 @@ use crate::joints::{WithJoints, with_joints};
 use crate::linalg::Precision;
 use crate::mesh::{TetMesh, box_mesh, read_mesh};
 use crate::scene::{
-    ENTRY_AUTO_FACTOR, FactorPrecisionSpec, GelSolveSpec, InsertionMode, NearRadiusSpec,
-    SampledPath, Scene,
+    ENTRY_AUTO_FACTOR, FactorPrecisionSpec, FarElementsSpec, GelSolveSpec, InsertionMode,
+    NearRadiusSpec, SampledPath, Scene,
 };
 use crate::step::{Insertion, Interaction, StepParams, TargetMotion};
 use crate::support_motion::SupportMotion;
@@ -311,6 +311,7 @@ pub fn gel_params(scene: &Scene) -> GelParams {
         },
         far_residual_tolerance: scene.solver.far_residual_tolerance,
         defer_far: scene.solver.defer_far,
+        far_linear: scene.solver.far_elements == FarElementsSpec::Linear,
         near_nodes: None,
         entry_nodes: None,
     }

@@ -623,6 +623,90 @@ fn far_rotation_sends_fewer_far_matrices_and_keeps_the_near_refreshes() {
     assert!(near_loose >= 1, "the near block is still refreshed");
 }
 
+/// `GelParams::far_linear`: with the elements outside the near block kept linear, the far
+/// field never makes the factor stale. Loads on near nodes only (the needle's) push the top of
+/// the near column sideways and back, so that near and far elements turn (up to 0.48 rad): the
+/// corotational far field sends matrices to the background factorisation, the linear one
+/// factorises the whole gel once (the first factor) and refreshes the near block alone; and,
+/// linear and solved with its own matrix, the far field is in equilibrium after every step
+/// (its residual at round-off, where the corotational far field's is not).
+#[test]
+fn linear_far_elements_never_make_the_whole_factor_stale() {
+    use needle_host::free_motion::{GelModel, GelParams};
+    let (mesh, bottom, near) = box_with_near_column();
+    let top: Vec<usize> = (mesh.nodes_on_plane(2, 20.0, 1e-9).into_iter())
+        .filter(|&i| near[i])
+        .collect();
+    let (_, params) = block_params(&near);
+    let run = |far_linear: bool| {
+        let params = GelParams {
+            far_linear,
+            time_step: None,
+            ..params.clone()
+        };
+        let mut model = GelModel::try_new(mesh.clone(), &bottom, &params).unwrap();
+        // The same elements, kept linear or not, to evaluate the residual by hand.
+        let plain = GelParams {
+            background_factorization: false,
+            refresh: None,
+            ..params.clone()
+        };
+        let mut by_hand = GelModel::try_new(mesh.clone(), &bottom, &plain).unwrap();
+        let (mut largest_turn, mut far_share) = (0.0f64, 0.0f64);
+        for k in 0..28 {
+            let mut f = vec![0.0; model_dofs(&mesh)];
+            for &i in &top {
+                f[3 * i] = if k < 14 { 2e-2 } else { -2e-2 };
+            }
+            let dx = model.free_motion(&f).unwrap().to_vec();
+            model.apply_displacement(&dx).unwrap();
+            by_hand.positions_mut().copy_from_slice(model.positions());
+            let f_int = by_hand.compute_internal_forces().to_vec();
+            let far2: f64 = (0..f_int.len())
+                .filter(|&g| !near[g / 3] && !model.is_fixed_dof(g))
+                .map(|g| f_int[g] * f_int[g])
+                .sum();
+            let load: f64 = f.iter().map(|v| v * v).sum();
+            far_share = far_share.max((far2 / load).sqrt());
+            for r in by_hand.tetra().rotations() {
+                let c = ((r.trace() - 1.0) / 2.0).clamp(-1.0, 1.0);
+                largest_turn = largest_turn.max(c.acos());
+            }
+        }
+        let (background, immediate) = model.background_counts().unwrap();
+        (
+            background + immediate,
+            model.near_refactorizations(),
+            far_share,
+            largest_turn,
+        )
+    };
+    let (full_corot, near_corot, far_corot, turn) = run(false);
+    let (full_linear, near_linear, far_linear, _) = run(true);
+    println!(
+        "corotational far field: {full_corot} full factorisations, {near_corot} near, far \
+         residual up to {far_corot:.2e} of the load; linear: {full_linear}, {near_linear}, \
+         {far_linear:.2e}; largest element turn {turn:.3} rad"
+    );
+    assert!(
+        full_corot > 1,
+        "the corotational far field made the factor stale: the test is void"
+    );
+    assert!(
+        far_corot > 1e-3,
+        "the corotational far field was in equilibrium: the test is void"
+    );
+    assert_eq!(
+        full_linear, 1,
+        "the linear far field factorises the whole gel once"
+    );
+    assert!(near_linear >= 1, "the near block is still refreshed");
+    assert!(
+        far_linear <= 1e-9,
+        "the linear far field's residual {far_linear:.2e} of the load"
+    );
+}
+
 /// `GelParams::far_residual_tolerance`: a free motion whose right-hand side is, outside the near
 /// block, at most `τ` of its whole norm is solved with those entries dropped (bit for bit the
 /// factor's solve of the right-hand side zeroed there); any other is solved whole; `τ = 0`

@@ -428,6 +428,9 @@ pub struct CorotationalTetra {
     grads: Vec<[Vector3<f64>; 4]>,
     /// Current element rotations (world ← rest).
     rotations: Vec<Matrix3<f64>>,
+    /// Elements kept linear in a corotational mesh, one flag per element; empty: none
+    /// ([`CorotationalTetra::keep_linear`]).
+    linear: Vec<bool>,
 }
 
 impl CorotationalTetra {
@@ -504,7 +507,41 @@ impl CorotationalTetra {
             volumes,
             grads,
             rotations: vec![Matrix3::identity(); m],
+            linear: Vec::new(),
         })
+    }
+
+    /// Keeps the elements flagged in `linear` (one flag per element) linear from now on:
+    /// small-strain elasticity about the rest state, their rotation the identity whatever their
+    /// deformation, in the forces, the tangent and [`CorotationalTetra::element_state`]; the
+    /// element passes skip the polar decomposition of chunks of such elements. The others stay
+    /// corotational (with [`Kinematics::Corotational`]). Meant at rest, before the first step.
+    ///
+    /// # Errors
+    /// [`FemError::DimensionMismatch`] unless there is one flag per element.
+    pub fn keep_linear(&mut self, linear: Vec<bool>) -> Result<(), FemError> {
+        if linear.len() != self.tets.len() {
+            return Err(FemError::DimensionMismatch {
+                what: "linear element flags",
+                expected: self.tets.len(),
+                got: linear.len(),
+            });
+        }
+        for (r, _) in self.rotations.iter_mut().zip(&linear).filter(|(_, l)| **l) {
+            *r = Matrix3::identity();
+        }
+        self.linear = if linear.contains(&true) {
+            linear
+        } else {
+            Vec::new()
+        };
+        Ok(())
+    }
+
+    /// Whether element `e` is kept linear ([`CorotationalTetra::keep_linear`]).
+    #[inline]
+    fn is_linear(&self, e: usize) -> bool {
+        self.kinematics == Kinematics::Linear || self.linear.get(e).is_some_and(|l| *l)
     }
 
     /// Number of elements.
@@ -613,9 +650,10 @@ impl CorotationalTetra {
     /// von Mises stress of `σ = λ tr(ε) I + 2μ ε` [MPa], and whether `det F ≤ 0`.
     pub fn element_state(&self, e: usize, x: &[Vector3<f64>]) -> ElementState {
         let f = self.deformation_gradient(e, x);
-        let r = match self.kinematics {
-            Kinematics::Corotational => rotation_from_deformation(&f),
-            Kinematics::Linear => Matrix3::identity(),
+        let r = if self.is_linear(e) {
+            Matrix3::identity()
+        } else {
+            rotation_from_deformation(&f)
         };
         let (strain, stress) = self.strain_stress(e, &r, &f);
         let dev = stress - Matrix3::identity() * (stress.trace() / 3.0);
@@ -652,7 +690,19 @@ impl CorotationalTetra {
             *fi = self.deformation_gradient(e0 + i, x);
         }
         if rotate {
+            let linear = self.linear.get(e0..e0 + n);
+            if linear.is_some_and(|l| l.iter().all(|l| *l)) {
+                return n;
+            }
             rotations_from_deformations(&f[..n], &mut self.rotations[e0..e0 + n]);
+            if let Some(l) = linear {
+                for (r, _) in (self.rotations[e0..e0 + n].iter_mut())
+                    .zip(l)
+                    .filter(|(_, l)| **l)
+                {
+                    *r = Matrix3::identity();
+                }
+            }
         }
         n
     }
@@ -906,5 +956,74 @@ mod tests {
             assert!(f1.iter().zip(&f2).all(|(a, b)| a.to_bits() == b.to_bits()));
             assert!(f1.iter().any(|v| v.abs() > 0.0));
         }
+    }
+    /// Elements kept linear (`keep_linear`) have the identity rotation and the forces of a
+    /// [`Kinematics::Linear`] mesh, bit for bit, in both element passes and in
+    /// `element_state`; the others keep the corotational mesh's rotations, forces and states.
+    /// Chunks of every kind (all linear, none, mixed) are covered.
+    #[test]
+    fn kept_linear_elements_move_as_a_linear_mesh_and_the_others_as_a_corotational_one() {
+        let mesh = box_mesh(Vector3::zeros(), Vector3::new(10.0, 8.0, 6.0), 120);
+        let material = Elasticity {
+            young_modulus: 0.005,
+            poisson_ratio: 0.45,
+        };
+        // A large rigid turn about x growing along x, a stretch and a shear.
+        let x: Vec<Vector3<f64>> = (mesh.nodes.iter())
+            .map(|p| {
+                let r = Rotation3::from_axis_angle(&Vector3::x_axis(), 0.05 * p.x);
+                r * Vector3::new(p.x * 1.1 + 0.1 * p.z, p.y, p.z * 0.95)
+            })
+            .collect();
+        let m = mesh.tets.len();
+        // Elements 0..8 linear (a whole chunk), 8..16 corotational, then every third.
+        let linear: Vec<bool> = (0..m).map(|e| e < 8 || (e >= 16 && e % 3 == 0)).collect();
+        let mut mixed =
+            CorotationalTetra::try_new(&mesh, &material, Kinematics::Corotational).unwrap();
+        mixed.keep_linear(linear.clone()).unwrap();
+        let corot = CorotationalTetra::try_new(&mesh, &material, Kinematics::Corotational).unwrap();
+        let lin = CorotationalTetra::try_new(&mesh, &material, Kinematics::Linear).unwrap();
+        let (mut corot, mut lin) = (corot, lin);
+        corot.update_rotations(&x);
+        lin.update_rotations(&x);
+        let mut two = mixed.clone();
+        two.update_rotations(&x);
+        let n = 3 * mesh.nodes.len();
+        let mut fused = vec![0.0; n];
+        mixed.update_rotations_and_add_internal_forces(&x, &mut fused);
+        assert_eq!(mixed.rotations(), two.rotations());
+        let mut turned = 0;
+        for (e, &kept) in linear.iter().enumerate() {
+            let of = if kept { &lin } else { &corot };
+            assert_eq!(mixed.rotation(e), of.rotation(e), "element {e}");
+            let bits = |f: [Vector3<f64>; 4]| f.map(|v| v.map(f64::to_bits));
+            assert_eq!(
+                bits(mixed.element_internal_force(e, &x)),
+                bits(of.element_internal_force(e, &x)),
+                "element {e}"
+            );
+            assert_eq!(mixed.element_state(e, &x), of.element_state(e, &x));
+            if !kept && (corot.rotation(e) - Matrix3::identity()).norm() > 0.1 {
+                turned += 1;
+            }
+        }
+        assert!(
+            turned > 0,
+            "no corotational element turned: the test is void"
+        );
+        // The fused pass sums the same element forces as the separate one.
+        let mut separate = vec![0.0; n];
+        two.add_internal_forces(&x, &mut separate);
+        assert!(
+            fused
+                .iter()
+                .zip(&separate)
+                .all(|(a, b)| a.to_bits() == b.to_bits())
+        );
+        // A flag per element, or an error naming what is wrong.
+        assert!(matches!(
+            mixed.keep_linear(vec![true; m - 1]),
+            Err(FemError::DimensionMismatch { .. })
+        ));
     }
 }

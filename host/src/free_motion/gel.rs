@@ -89,6 +89,12 @@ pub struct GelParams {
     /// the constraint solve, for the free and the corrective motion together
     /// ([`super::FeModel::free_motion_deferring_far`], [`super::FeModel::complete_far`]).
     pub defer_far: bool,
+    /// With `near_nodes`: the elements not all of whose nodes are near kept linear (their
+    /// rotation the identity whatever their deformation,
+    /// [`crate::fem::tetra::CorotationalTetra::keep_linear`]); the near elements stay
+    /// corotational. The far elements then never make the gel's factor stale, and the far
+    /// field, linear and solved with its own matrix, stays in equilibrium.
+    pub far_linear: bool,
 }
 
 impl Default for GelParams {
@@ -113,6 +119,7 @@ impl Default for GelParams {
             entry_nodes: None,
             far_residual_tolerance: 0.0,
             defer_far: false,
+            far_linear: false,
         }
     }
 }
@@ -223,7 +230,8 @@ impl FeModel<Tets> {
         let densities: Vec<f64> = (mesh.regions.iter())
             .map(|&r| region(r).map_or(params.density, |m| m.density))
             .collect();
-        let tetra = CorotationalTetra::try_new_per_element(&mesh, &materials, params.kinematics)?;
+        let mut tetra =
+            CorotationalTetra::try_new_per_element(&mesh, &materials, params.kinematics)?;
         let n = mesh.nodes.len();
         let regularization = match params.time_step {
             None => vec![0.0; 3 * n],
@@ -272,6 +280,11 @@ impl FeModel<Tets> {
                     defer_far: params.defer_far,
                 }
             });
+        if params.far_linear
+            && let Some(near) = &near
+        {
+            tetra.keep_linear(near.elements.iter().map(|n| !n).collect())?;
+        }
         let nd = (ordering == FillOrdering::NestedDissection).then_some(coords.as_slice());
         let mut sorted = fixed_nodes.to_vec();
         sorted.sort_unstable();

@@ -121,7 +121,7 @@ fn factorization(quick: bool, specs: &mut Vec<Spec>) {
         &["simple", "complex"]
     };
     // (overrides beyond the base, parameter text)
-    let variants: [(&[(&str, &str)], &str); 7] = [
+    let variants: [(&[(&str, &str)], &str); 8] = [
         (
             &[
                 ("solver.refactor_every", "1"),
@@ -131,7 +131,11 @@ fn factorization(quick: bool, specs: &mut Vec<Spec>) {
         ),
         (
             &[],
-            "background, adaptive refresh: a factor when an element turned 0.05 rad, single-precision factor (default)",
+            "background, adaptive refresh: a factor when an element turned 0.05 rad, single-precision factor, far elements linear (default)",
+        ),
+        (
+            &[("solver.far_elements", "\"corotational\"")],
+            "background, adaptive refresh, far elements corotational",
         ),
         (
             &[("solver.factor_precision", "\"double\"")],
@@ -156,8 +160,9 @@ fn factorization(quick: bool, specs: &mut Vec<Spec>) {
             &[
                 ("solver.background_factorization", "false"),
                 ("solver.factor_precision", "\"double\""),
+                ("solver.far_elements", "\"corotational\""),
             ],
-            "synchronous, every step, double-precision factor (the paper's)",
+            "synchronous, every step, double-precision factor, corotational gel (the paper's)",
         ),
     ];
     for &scene in scenes {

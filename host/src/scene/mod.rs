@@ -548,7 +548,8 @@ pub struct SolverSpec {
     /// The near block: the gel's nodes within a distance [mm] of the planned path (and of its
     /// straight approach) are eliminated last in the gel's factor, and the block they span is
     /// refactorised on its own, at once, when one of its elements has rotated by
-    /// `refresh_rotation`; the elements elsewhere drive the background factorisation as before.
+    /// `refresh_rotation`; the elements elsewhere, when they turn (`far_elements`), drive the
+    /// background factorisation as before.
     /// A distance, `"off"`, or `"auto"` (the default): on gels of [`NEAR_AUTO_MIN_NODES`]
     /// nodes or more, [`NEAR_AUTO_REACH`] plus [`NEAR_AUTO_SPACINGS`] node spacings; none on
     /// smaller ones. Needs
@@ -564,6 +565,13 @@ pub struct SolverSpec {
     /// accuracy on heavily loaded gels (measured in `docs/architecture.md`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub far_refresh_rotation: Option<f64>,
+    /// Where the gel has a near block (`near_radius`; with any solver): how its elements not
+    /// all of whose nodes are near move: `"linear"` (the default: small-strain elasticity
+    /// about the rest state) or `"corotational"` (the paper's model, as the near elements).
+    /// Linear far elements never make the factor stale, and the far field is then solved with
+    /// its own matrix: the whole gel is factorised once.
+    #[serde(default)]
+    pub far_elements: FarElementsSpec,
     /// With a near block (`near_radius`): the entry block, the gel's nodes within this distance
     /// [mm] of the path's entry point, added to the near block and eliminated last of all. Its
     /// block of the factor is refactorised on its own (from the near block's last matrix) when
@@ -697,6 +705,17 @@ pub enum GelSolveSpec {
     Refine,
 }
 
+/// How the gel's elements outside the near block move (`solver.far_elements`).
+#[derive(Clone, Copy, Debug, Default, Deserialize, Serialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum FarElementsSpec {
+    /// Corotational, as the near elements (the paper's model of the whole gel).
+    Corotational,
+    /// Small-strain linear elasticity (the rest state's rotation for good): the default.
+    #[default]
+    Linear,
+}
+
 impl SolverSpec {
     /// `far_refresh_rotation` as set, or its default `refresh_rotation`.
     pub fn far_refresh_rotation(&self) -> f64 {
@@ -732,6 +751,7 @@ impl Default for SolverSpec {
             factor_precision: default_factor_precision(),
             near_radius: NearRadiusSpec::Auto,
             far_refresh_rotation: None,
+            far_elements: FarElementsSpec::default(),
             entry_radius: NearRadiusSpec::Auto,
             far_residual_tolerance: default_far_residual_tolerance(),
             defer_far: default_defer_far(),

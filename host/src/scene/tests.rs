@@ -293,6 +293,25 @@ fn factorisation_defaults_follow_the_mode() {
         let e = set(&[("solver.far_refresh_rotation", bad)]).unwrap_err();
         assert_eq!(e.field, "solver.far_refresh_rotation", "{bad}");
     }
+    assert_eq!(
+        s.solver.far_elements,
+        FarElementsSpec::Linear,
+        "the default"
+    );
+    for (text, kind) in [
+        ("\"corotational\"", FarElementsSpec::Corotational),
+        ("\"linear\"", FarElementsSpec::Linear),
+    ] {
+        assert_eq!(
+            set(&[("solver.far_elements", text)])
+                .unwrap()
+                .solver
+                .far_elements,
+            kind
+        );
+    }
+    let e = set(&[("solver.far_elements", "\"rigid\"")]).unwrap_err();
+    assert_eq!(e.field, "solver.far_elements");
     assert_eq!(s.solver.entry_radius, NearRadiusSpec::Auto, "the default");
     let entry = set(&[("solver.entry_radius", "12")]).unwrap();
     assert_eq!(entry.solver.entry_radius, NearRadiusSpec::Radius(12.0));

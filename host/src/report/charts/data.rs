@@ -178,7 +178,8 @@ pub(crate) fn setting(f: &RunFacts) -> (PointKind, String) {
 /// `adaptive 2` (background factorisation, the adaptive refresh with a pipeline of 2: the
 /// default), `pipeline 2` (a factor every 2 steps, `solver.refresh_rotation = 0`) or
 /// `synchronous`, from a run's overrides; `, f64` appended for a double-precision factor
-/// (`solver.factor_precision = "double"`).
+/// (`solver.factor_precision = "double"`), `, far corotational` for corotational far elements
+/// (`solver.far_elements`; the default: linear).
 pub(crate) fn factorization_setting(overrides: &[(String, String)]) -> String {
     let get = |field: &str| {
         overrides
@@ -188,7 +189,11 @@ pub(crate) fn factorization_setting(overrides: &[(String, String)]) -> String {
             .map(|(_, v)| v.as_str())
     };
     let double = get("solver.factor_precision").map(|v| v.trim_matches('"')) == Some("double");
-    let precision = if double { ", f64" } else { "" };
+    let far = match get("solver.far_elements").map(|v| v.trim_matches('"')) {
+        Some("corotational") => ", far corotational".to_string(),
+        _ => String::new(),
+    };
+    let precision = format!("{}{far}", if double { ", f64" } else { "" });
     if get("solver.background_factorization") == Some("false") {
         return format!("synchronous{precision}");
     }
@@ -535,6 +540,32 @@ mod tests {
         // A run that did not start has no point.
         facts[1].started = false;
         assert_eq!(speed_points(&facts, "complex").len(), 5);
+    }
+
+    /// The factorisation group's settings name what differs from the default pipeline: the
+    /// synchronous step, a double factor, corotational far elements.
+    #[test]
+    fn factorisation_settings_name_the_far_elements_when_corotational() {
+        let o = |pairs: &[(&str, &str)]| -> Vec<(String, String)> {
+            pairs
+                .iter()
+                .map(|(f, v)| (f.to_string(), v.to_string()))
+                .collect()
+        };
+        assert_eq!(factorization_setting(&o(&[])), "adaptive 2");
+        let paper = o(&[
+            ("solver.background_factorization", "false"),
+            ("solver.factor_precision", "\"double\""),
+            ("solver.far_elements", "\"corotational\""),
+        ]);
+        assert_eq!(
+            factorization_setting(&paper),
+            "synchronous, f64, far corotational"
+        );
+        let far = o(&[("solver.far_elements", "\"corotational\"")]);
+        assert_eq!(factorization_setting(&far), "adaptive 2, far corotational");
+        let linear = o(&[("solver.far_elements", "\"linear\"")]);
+        assert_eq!(factorization_setting(&linear), "adaptive 2");
     }
 
     #[test]
