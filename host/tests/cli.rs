@@ -8,11 +8,10 @@ fn needle() -> Command {
     Command::new(env!("CARGO_BIN_EXE_needle"))
 }
 
-fn tmp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("needle-cli-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).expect("temp dir");
-    d
+/// A fresh folder under the system's temporary folder, removed when dropped.
+fn tmp(name: &str) -> tempfile::TempDir {
+    let prefix = format!("needle-cli-{name}-");
+    (tempfile::Builder::new().prefix(&prefix).tempdir()).expect("temp dir")
 }
 
 fn stderr(o: &Output) -> String {
@@ -55,7 +54,8 @@ fn vtk_every_without_out_is_refused_instead_of_ignored() {
 
 #[test]
 fn embedded_scene_runs_beside_a_folder_of_the_same_name() {
-    let dir = tmp("folder");
+    let guard = tmp("folder");
+    let dir = guard.path();
     std::fs::create_dir_all(dir.join("simple")).expect("folder `simple`");
     let o = short_run(&[]).current_dir(&dir).output().expect("run");
     let err = stderr(&o);
@@ -63,7 +63,6 @@ fn embedded_scene_runs_beside_a_folder_of_the_same_name() {
     assert!(!err.contains("cannot read"), "{err}");
     // Three steps end above the gel: stopped short of the target, a run's outcome, not an error.
     assert!(!matches!(o.status.code(), Some(1 | 2)), "{err}");
-    let _ = std::fs::remove_dir_all(dir);
 }
 
 #[test]
@@ -91,7 +90,8 @@ fn replay_doc(html: &str) -> serde_json::Value {
 
 #[test]
 fn run_with_out_writes_a_replay_with_its_first_and_last_frames() {
-    let dir = tmp("replay");
+    let guard = tmp("replay");
+    let dir = guard.path();
     let o = short_run(&["--steps", "47"])
         .arg("--out")
         .arg(&dir)
@@ -107,14 +107,14 @@ fn run_with_out_writes_a_replay_with_its_first_and_last_frames() {
     assert!(frames.len() >= 2);
     let summary = doc["summary"].as_array().expect("summary");
     assert_eq!(summary[0][0], "outcome");
-    let _ = std::fs::remove_dir_all(dir);
 }
 
 #[test]
 fn vtk_frames_include_the_last_step_and_a_pvd_with_their_times() {
     // 47 steps every 20: frames 0, 20, 40 and the last, 47 (step 600 of 609 was the last
     // frame written before).
-    let dir = tmp("vtk");
+    let guard = tmp("vtk");
+    let dir = guard.path();
     let o = short_run(&["--steps", "47", "--vtk-every", "20"])
         .arg("--out")
         .arg(&dir)
@@ -147,12 +147,12 @@ fn vtk_frames_include_the_last_step_and_a_pvd_with_their_times() {
     );
     let run = std::fs::read_to_string(dir.join("run.pvd")).expect("run.pvd");
     assert_eq!(run.matches("<DataSet ").count(), 4 * parts.len());
-    let _ = std::fs::remove_dir_all(dir);
 }
 
 #[test]
 fn suite_runs_every_scene_of_a_folder_and_records_one_that_cannot_run() {
-    let dir = tmp("suite");
+    let guard = tmp("suite");
+    let dir = guard.path();
     let scenes = dir.join("scenes");
     std::fs::create_dir_all(&scenes).expect("folder");
     let simple = concat!(env!("CARGO_MANIFEST_DIR"), "/../scenes/simple.toml");
@@ -193,7 +193,6 @@ fn suite_runs_every_scene_of_a_folder_and_records_one_that_cannot_run() {
     // The chart, with the default `charts` feature: a PNG.
     let png = std::fs::read(dir.join("out/suite.png")).expect("suite.png");
     assert!(png.starts_with(b"\x89PNG"), "not a PNG");
-    let _ = std::fs::remove_dir_all(dir);
 }
 
 #[test]
@@ -235,7 +234,8 @@ fn logs_are_leveled_by_v_and_q_and_rust_log() {
 /// is not a suite's JSON is refused naming it, exit 2.
 #[test]
 fn compare_reads_two_suite_runs_and_names_a_lost_target() {
-    let d = tmp("compare");
+    let guard = tmp("compare");
+    let d = guard.path();
     let scenes = d.join("scenes");
     std::fs::create_dir_all(&scenes).expect("dir");
     let src = concat!(env!("CARGO_MANIFEST_DIR"), "/../scenes/suite/simple_y.toml");

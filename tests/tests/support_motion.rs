@@ -294,10 +294,9 @@ fn target_moves_with_the_support_and_the_hidden_motion_leaves_the_joints_unchang
     assert!(moved > 1.0);
 }
 
-fn temp_csv(name: &str, text: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("needle-support-motion-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let p = dir.join(name);
+/// `text` written to `name` in `dir`.
+fn temp_csv(dir: &tempfile::TempDir, name: &str, text: &str) -> PathBuf {
+    let p = dir.path().join(name);
     std::fs::write(&p, text).unwrap();
     p
 }
@@ -321,7 +320,11 @@ fn setup_error(csv: &Path) -> String {
 
 #[test]
 fn csv_motion_errors_name_the_file_the_line_and_the_reason() {
-    let bad = temp_csv("bad.csv", "t,dx,dy,dz\n0,0,0,0\n1.0,0.5,x,0\n");
+    let dir = tempfile::Builder::new()
+        .prefix("needle-support-motion-")
+        .tempdir()
+        .unwrap();
+    let bad = temp_csv(&dir, "bad.csv", "t,dx,dy,dz\n0,0,0,0\n1.0,0.5,x,0\n");
     let e = setup_error(&bad);
     assert_eq!(
         e,
@@ -330,14 +333,14 @@ fn csv_motion_errors_name_the_file_the_line_and_the_reason() {
             bad.display()
         )
     );
-    let short = temp_csv("short.csv", "0,0,0,0\n1,2,3\n");
+    let short = temp_csv(&dir, "short.csv", "0,0,0,0\n1,2,3\n");
     assert!(setup_error(&short).contains("line 2: expected 4 fields"));
-    let back = temp_csv("back.csv", "0,0,0,0\n2,0,0,1\n1,0,0,2\n");
+    let back = temp_csv(&dir, "back.csv", "0,0,0,0\n2,0,0,1\n1,0,0,2\n");
     assert!(setup_error(&back).contains("line 3: `t` must increase"));
     let missing = bad.with_file_name("missing.csv");
     assert!(setup_error(&missing).contains("cannot read"));
     // A good table runs, and drives the support: 2 mm along y after 1 s.
-    let good = temp_csv("good.csv", "t, dx, dy, dz\n0, 0, 0, 0\n1, 0, 2, 0\n");
+    let good = temp_csv(&dir, "good.csv", "t, dx, dy, dz\n0, 0, 0, 0\n1, 0, 2, 0\n");
     let s = scene(
         "simple",
         &[

@@ -42,10 +42,11 @@ fn repo() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
 }
 
-fn tmp(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("needle-trust-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).expect("tmp dir");
-    dir.join(name)
+/// A fresh folder of this test, removed when dropped, and `name` in it.
+fn tmp(name: &str) -> (tempfile::TempDir, PathBuf) {
+    let dir = (tempfile::Builder::new().prefix("needle-trust-").tempdir()).expect("tmp dir");
+    let path = dir.path().join(name);
+    (dir, path)
 }
 
 // ---- 1. Divergence stops the run -------------------------------------------------------------
@@ -309,7 +310,7 @@ fn mesh_in_metres_gets_a_hint() {
     for p in &mut mesh.nodes {
         *p *= 0.01; // 10 mm written as metres… read as 0.1 mm
     }
-    let path = tmp("metres.msh");
+    let (_dir, path) = tmp("metres.msh");
     std::fs::write(&path, gmsh_text(&mesh)).expect("write");
     let mut scene = Scene::builtin("simple").expect("simple");
     scene.gel.box_mesh = None;

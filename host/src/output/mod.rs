@@ -191,15 +191,19 @@ impl MetricsWriter {
 mod tests {
     use super::*;
 
-    fn tmp(name: &str) -> PathBuf {
-        let dir = std::env::temp_dir().join(format!("needle-output-test-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        dir.join(name)
+    /// A fresh folder of this test, removed when dropped, and `name` in it.
+    fn tmp(name: &str) -> (tempfile::TempDir, PathBuf) {
+        let dir = (tempfile::Builder::new()
+            .prefix("needle-output-test-")
+            .tempdir())
+        .unwrap();
+        let path = dir.path().join(name);
+        (dir, path)
     }
 
     #[test]
     fn csv_has_one_column_per_header_field() {
-        let path = tmp("metrics.csv");
+        let (_dir, path) = tmp("metrics.csv");
         let mut w = MetricsWriter::create(&path, 3, 6).unwrap();
         w.write(&StepMetrics {
             step: 1,

@@ -108,10 +108,11 @@ fn small_replay() -> ReplayData {
     }
 }
 
-fn tmp(name: &str) -> std::path::PathBuf {
-    let dir = std::env::temp_dir().join(format!("needle-replay-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    dir.join(name)
+/// A fresh folder of this test, removed when dropped, and `name` in it.
+fn tmp(name: &str) -> (tempfile::TempDir, std::path::PathBuf) {
+    let dir = (tempfile::Builder::new().prefix("needle-replay-").tempdir()).unwrap();
+    let path = dir.path().join(name);
+    (dir, path)
 }
 
 const DATA_OPEN: &str = r#"<script id="replay-data" type="application/json">"#;
@@ -154,7 +155,7 @@ fn template_has_the_placeholder_exactly_once_and_the_data_element_around_it() {
 #[test]
 fn written_replay_holds_the_data_in_place_of_the_placeholder_and_decodes_to_the_same_floats() {
     let data = small_replay();
-    let path = tmp("replay.html");
+    let (_dir, path) = tmp("replay.html");
     write_replay(&path, &data).unwrap();
     let html = std::fs::read_to_string(&path).unwrap();
 

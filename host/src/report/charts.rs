@@ -749,10 +749,10 @@ mod tests {
             |_| PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../report")),
             PathBuf::from,
         );
-        let out = std::env::var("NEEDLE_CHARTS_OUT").map_or_else(
-            |_| std::env::temp_dir().join(format!("needle-redraw-{}", std::process::id())),
-            PathBuf::from,
-        );
+        // Into `NEEDLE_CHARTS_OUT` when given (kept), else a temporary folder removed at the end.
+        let temporary = (tempfile::Builder::new().prefix("needle-redraw-").tempdir()).unwrap();
+        let out = std::env::var("NEEDLE_CHARTS_OUT")
+            .map_or_else(|_| temporary.path().to_path_buf(), PathBuf::from);
         let json: serde_json::Value =
             serde_json::from_str(&std::fs::read_to_string(dir.join("report.json")).unwrap())
                 .unwrap();

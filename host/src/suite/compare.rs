@@ -365,12 +365,10 @@ mod tests {
         })
     }
 
-    /// A fresh folder of this test process under the system's temporary folder.
-    fn temp_dir(test: &str) -> PathBuf {
-        let d = std::env::temp_dir().join(format!("needle-compare-{}-{test}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&d);
-        std::fs::create_dir_all(&d).unwrap();
-        d
+    /// A fresh folder under the system's temporary folder, removed when dropped.
+    fn temp_dir(test: &str) -> tempfile::TempDir {
+        let prefix = format!("needle-compare-{test}-");
+        (tempfile::Builder::new().prefix(&prefix).tempdir()).unwrap()
     }
 
     fn write(dir: &Path, name: &str, rows: &[Value]) -> PathBuf {
@@ -384,7 +382,8 @@ mod tests {
     /// are over the scenes both files have.
     #[test]
     fn compare_names_lost_gained_and_moved_scenes() {
-        let dir = temp_dir("names");
+        let tmp = temp_dir("names");
+        let dir = tmp.path();
         let before = write(
             &dir,
             "before.json",
@@ -446,7 +445,8 @@ mod tests {
     /// is neither; an obstacle appearing (clearance finite after, none before) is closer.
     #[test]
     fn a_scene_closer_to_its_obstacle_is_named_though_its_errors_held() {
-        let dir = temp_dir("closer");
+        let tmp = temp_dir("closer");
+        let dir = tmp.path();
         let e = [0.1, 0.2, 0.01];
         let before = write(
             &dir,
@@ -493,7 +493,8 @@ mod tests {
     /// index, scene and field.
     #[test]
     fn bad_suite_files_are_refused_naming_file_row_and_field() {
-        let dir = temp_dir("bad");
+        let tmp = temp_dir("bad");
+        let dir = tmp.path();
         let missing = dir.join("none.json");
         let e = load(&missing, "default").unwrap_err().to_string();
         assert!(e.starts_with(&missing.display().to_string()), "{e}");
