@@ -131,11 +131,11 @@ fn factorization(quick: bool, specs: &mut Vec<Spec>) {
         ),
         (
             &[],
-            "background, adaptive refresh: a factor when an element turned 0.05 rad, single-precision factor, far elements linear (default)",
+            "background, adaptive refresh: a factor when an element turned 0.05 rad, single-precision factor (default)",
         ),
         (
-            &[("solver.far_elements", "\"corotational\"")],
-            "background, adaptive refresh, far elements corotational",
+            &[("solver.far_elements", "\"linear\"")],
+            "background, adaptive refresh, the elements outside the near block linear",
         ),
         (
             &[("solver.factor_precision", "\"double\"")],
@@ -160,9 +160,8 @@ fn factorization(quick: bool, specs: &mut Vec<Spec>) {
             &[
                 ("solver.background_factorization", "false"),
                 ("solver.factor_precision", "\"double\""),
-                ("solver.far_elements", "\"corotational\""),
             ],
-            "synchronous, every step, double-precision factor, corotational gel (the paper's)",
+            "synchronous, every step, double-precision factor (the paper's)",
         ),
     ];
     for &scene in scenes {

@@ -548,8 +548,8 @@ pub struct SolverSpec {
     /// The near block: the gel's nodes within a distance [mm] of the planned path (and of its
     /// straight approach) are eliminated last in the gel's factor, and the block they span is
     /// refactorised on its own, at once, when one of its elements has rotated by
-    /// `refresh_rotation`; the elements elsewhere, when they turn (`far_elements`), drive the
-    /// background factorisation as before.
+    /// `refresh_rotation`; the elements elsewhere drive the background factorisation as before
+    /// (unless `far_elements = "linear"`).
     /// A distance, `"off"`, or `"auto"` (the default): on gels of [`NEAR_AUTO_MIN_NODES`]
     /// nodes or more, [`NEAR_AUTO_REACH`] plus [`NEAR_AUTO_SPACINGS`] node spacings; none on
     /// smaller ones. Needs
@@ -566,10 +566,11 @@ pub struct SolverSpec {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub far_refresh_rotation: Option<f64>,
     /// Where the gel has a near block (`near_radius`; with any solver): how its elements not
-    /// all of whose nodes are near move: `"linear"` (the default: small-strain elasticity
-    /// about the rest state) or `"corotational"` (the paper's model, as the near elements).
-    /// Linear far elements never make the factor stale, and the far field is then solved with
-    /// its own matrix: the whole gel is factorised once.
+    /// all of whose nodes are near move: `"corotational"` (the default: the paper's model, as
+    /// the near elements) or `"linear"` (small-strain elasticity about the rest state). Linear
+    /// far elements never make the factor stale, and the far field is then solved with its own
+    /// matrix: the whole gel is factorised once (faster on large gels, at a cost in accuracy
+    /// measured in `docs/architecture.md`).
     #[serde(default)]
     pub far_elements: FarElementsSpec,
     /// With a near block (`near_radius`): the entry block, the gel's nodes within this distance
@@ -709,10 +710,10 @@ pub enum GelSolveSpec {
 #[derive(Clone, Copy, Debug, Default, Deserialize, Serialize, PartialEq, Eq)]
 #[serde(rename_all = "lowercase")]
 pub enum FarElementsSpec {
-    /// Corotational, as the near elements (the paper's model of the whole gel).
-    Corotational,
-    /// Small-strain linear elasticity (the rest state's rotation for good): the default.
+    /// Corotational, as the near elements (the paper's model of the whole gel): the default.
     #[default]
+    Corotational,
+    /// Small-strain linear elasticity (the rest state's rotation for good).
     Linear,
 }
 

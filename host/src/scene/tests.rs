@@ -295,7 +295,7 @@ fn factorisation_defaults_follow_the_mode() {
     }
     assert_eq!(
         s.solver.far_elements,
-        FarElementsSpec::Linear,
+        FarElementsSpec::Corotational,
         "the default"
     );
     for (text, kind) in [

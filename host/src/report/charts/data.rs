@@ -178,8 +178,8 @@ pub(crate) fn setting(f: &RunFacts) -> (PointKind, String) {
 /// `adaptive 2` (background factorisation, the adaptive refresh with a pipeline of 2: the
 /// default), `pipeline 2` (a factor every 2 steps, `solver.refresh_rotation = 0`) or
 /// `synchronous`, from a run's overrides; `, f64` appended for a double-precision factor
-/// (`solver.factor_precision = "double"`), `, far corotational` for corotational far elements
-/// (`solver.far_elements`; the default: linear).
+/// (`solver.factor_precision = "double"`), `, far linear` for linear far elements
+/// (`solver.far_elements`; the default: corotational).
 pub(crate) fn factorization_setting(overrides: &[(String, String)]) -> String {
     let get = |field: &str| {
         overrides
@@ -190,7 +190,7 @@ pub(crate) fn factorization_setting(overrides: &[(String, String)]) -> String {
     };
     let double = get("solver.factor_precision").map(|v| v.trim_matches('"')) == Some("double");
     let far = match get("solver.far_elements").map(|v| v.trim_matches('"')) {
-        Some("corotational") => ", far corotational".to_string(),
+        Some("linear") => ", far linear".to_string(),
         _ => String::new(),
     };
     let precision = format!("{}{far}", if double { ", f64" } else { "" });
@@ -543,9 +543,9 @@ mod tests {
     }
 
     /// The factorisation group's settings name what differs from the default pipeline: the
-    /// synchronous step, a double factor, corotational far elements.
+    /// synchronous step, a double factor, linear far elements.
     #[test]
-    fn factorisation_settings_name_the_far_elements_when_corotational() {
+    fn factorisation_settings_name_the_far_elements_when_linear() {
         let o = |pairs: &[(&str, &str)]| -> Vec<(String, String)> {
             pairs
                 .iter()
@@ -556,16 +556,12 @@ mod tests {
         let paper = o(&[
             ("solver.background_factorization", "false"),
             ("solver.factor_precision", "\"double\""),
-            ("solver.far_elements", "\"corotational\""),
         ]);
-        assert_eq!(
-            factorization_setting(&paper),
-            "synchronous, f64, far corotational"
-        );
-        let far = o(&[("solver.far_elements", "\"corotational\"")]);
-        assert_eq!(factorization_setting(&far), "adaptive 2, far corotational");
+        assert_eq!(factorization_setting(&paper), "synchronous, f64");
         let linear = o(&[("solver.far_elements", "\"linear\"")]);
-        assert_eq!(factorization_setting(&linear), "adaptive 2");
+        assert_eq!(factorization_setting(&linear), "adaptive 2, far linear");
+        let corot = o(&[("solver.far_elements", "\"corotational\"")]);
+        assert_eq!(factorization_setting(&corot), "adaptive 2");
     }
 
     #[test]
