@@ -18,10 +18,9 @@
 //! Prints one row per scene and the count of scenes within 0.05 mm on all three; exits 1 if a
 //! scene cannot be set up or run.
 
-use needle_host::open_loop::OpenLoop;
-use needle_host::run::{RunOptions, RunSummary, run, run_with};
+use needle_host::run::{RunOptions, RunSummary, replay, run};
 use needle_host::scene::Scene;
-use needle_host::setup::Setup;
+use needle_host::suite::{SuiteOptions, scene_list};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
@@ -36,24 +35,24 @@ const EXACT: [(&str, &str); 3] = [
 const TOLERANCE_MM: f64 = 0.05;
 
 /// A scene by embedded name or file.
-fn load(arg: &str) -> Result<Scene, String> {
-    match Scene::builtin(arg) {
-        Some(s) => Ok(s),
-        None => Scene::load(Path::new(arg)).map_err(|e| e.to_string()),
+fn load(name: &str, file: Option<&Path>) -> Result<Scene, String> {
+    match file {
+        Some(f) => Scene::load(f).map_err(|e| e.to_string()),
+        None => Scene::builtin(name).ok_or_else(|| format!("no embedded scene `{name}`")),
     }
 }
 
-/// The benchmarks and every scene file of `scenes/suite/`, in name order.
-fn default_scenes() -> Vec<String> {
-    let dir = PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../scenes/suite"));
-    let mut files: Vec<PathBuf> = std::fs::read_dir(&dir)
-        .map(|d| d.filter_map(|e| e.ok().map(|e| e.path())).collect())
-        .unwrap_or_default();
-    files.retain(|p| p.extension().is_some_and(|x| x == "toml"));
-    files.sort();
-    let mut out = vec!["simple".to_owned(), "complex".to_owned()];
-    out.extend(files.iter().map(|p| p.display().to_string()));
-    out
+/// The scenes `needle suite` runs: the benchmarks, then `scenes/suite/` in name order.
+fn default_scenes() -> Vec<(String, Option<PathBuf>)> {
+    let opts = SuiteOptions {
+        dir: PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../scenes/suite")),
+        benchmarks: true,
+        overrides: Vec::new(),
+        nodes: None,
+        steps: None,
+        variants: Vec::new(),
+    };
+    scene_list(&opts).unwrap_or_default()
 }
 
 /// The exact closed loop's summary and the default pipeline's replay of its joints.
@@ -71,14 +70,8 @@ fn compare(scene: &Scene) -> Result<(RunSummary, RunSummary), String> {
                 .ok_or("only 6-joint arms are replayed here")
         })
         .collect::<Result<_, _>>()?;
-    let s = Setup::build(scene).map_err(|e| e.to_string())?;
-    let mut open = OpenLoop::new(s.robot, s.inverse, joints.clone());
-    let opts = RunOptions {
-        steps: Some(joints.len()),
-        ..RunOptions::default()
-    };
-    let replay = run_with(scene, &opts, &mut open, |_| {}).map_err(|e| e.to_string())?;
-    Ok((closed.summary, replay.summary))
+    let replayed = replay(scene, joints).map_err(|e| e.to_string())?;
+    Ok((closed.summary, replayed.summary))
 }
 
 fn main() -> ExitCode {
@@ -99,10 +92,16 @@ fn main() -> ExitCode {
             args.push(a);
         }
     }
-    let names = if args.is_empty() {
+    let names: Vec<(String, Option<PathBuf>)> = if args.is_empty() {
         default_scenes()
     } else {
-        args
+        // An embedded scene by name, else a file.
+        (args.into_iter())
+            .map(|a| match Scene::builtin(&a) {
+                Some(_) => (a, None),
+                None => (a.clone(), Some(PathBuf::from(a))),
+            })
+            .collect()
     };
     println!(
         "| scene | exact e_mean / e_max / e_final [mm] | default pipeline, same joints | largest difference |"
@@ -110,11 +109,12 @@ fn main() -> ExitCode {
     println!("|---|---|---|---|");
     let (mut within, mut total, mut failed) = (0, 0, 0);
     let mut worst = (0.0f64, String::new());
-    for name in &names {
-        let short = Path::new(name)
-            .file_stem()
+    for (name, file) in &names {
+        let short = file
+            .as_deref()
+            .and_then(Path::file_stem)
             .map_or_else(|| name.clone(), |s| s.to_string_lossy().into_owned());
-        let result = load(name)
+        let result = load(name, file.as_deref())
             .and_then(|scene| scene.with_overrides(&overrides).map_err(|e| e.to_string()))
             .and_then(|scene| compare(&scene));
         let (a, b) = match result {

@@ -7,10 +7,8 @@
 //! (the replay is faithful). `NEEDLE_FAR_NODES=1485,5040` runs it at 5040 nodes too (about
 //! 90 s).
 
-use needle_host::open_loop::OpenLoop;
-use needle_host::run::{RunOptions, run, run_with};
+use needle_host::run::{RunOptions, replay, run};
 use needle_host::scene::Scene;
-use needle_host::setup::Setup;
 
 fn scene(nodes: &str, overrides: &[(&str, &str)]) -> Scene {
     let mut all = vec![("gel.box.nodes", nodes)];
@@ -27,14 +25,8 @@ fn largest_gap(a: &[[f64; 3]], b: &[[f64; 3]]) -> f64 {
 
 /// The tips of `scene` driven open loop through `joints`, and its full factorisations
 /// (background and immediate).
-fn replay(scene: &Scene, joints: &[[f64; 6]]) -> (Vec<[f64; 3]>, u64) {
-    let s = Setup::build(scene).expect("scene builds");
-    let mut open = OpenLoop::new(s.robot, s.inverse, joints.to_vec());
-    let opts = RunOptions {
-        steps: Some(joints.len()),
-        ..RunOptions::default()
-    };
-    let r = run_with(scene, &opts, &mut open, |_| {}).expect("replay runs");
+fn replay_tips(scene: &Scene, joints: &[[f64; 6]]) -> (Vec<[f64; 3]>, u64) {
+    let r = replay(scene, joints.to_vec()).expect("replay runs");
     assert_eq!(r.reports.len(), joints.len(), "{:?}", r.summary.stopped);
     let tips = r
         .reports
@@ -74,7 +66,7 @@ fn far_elements_move_the_replayed_tip_by_less_than_a_tenth_of_a_millimetre() {
             .collect();
         let depth = closed.summary.final_depth_mm;
         assert!(depth > 40.0, "the insertion stopped short: {depth} mm");
-        let (same, full_corot) = replay(&corot, &joints);
+        let (same, full_corot) = replay_tips(&corot, &joints);
         let faithful = largest_gap(&tips, &same);
         assert!(
             faithful < 1e-3,
@@ -90,10 +82,10 @@ fn far_elements_move_the_replayed_tip_by_less_than_a_tenth_of_a_millimetre() {
                 ("solver.factor_precision", "\"double\""),
             ],
         );
-        let (sync, _) = replay(&exact, &joints);
+        let (sync, _) = replay_tips(&exact, &joints);
         let pipeline = largest_gap(&sync, &same);
         let linear = scene(nodes, &[("solver.far_elements", "\"linear\"")]);
-        let (lin_tips, full_linear) = replay(&linear, &joints);
+        let (lin_tips, full_linear) = replay_tips(&linear, &joints);
         let lin = largest_gap(&sync, &lin_tips);
         println!(
             "{nodes} nodes, {} steps to {depth:.1} mm deep (replay within {faithful:.1e} mm of \

@@ -327,6 +327,22 @@ impl<const N: usize> Books<N> {
     }
 }
 
+/// `scene` driven open loop through `joints`, one step per entry (one constraint solve at each
+/// step's joints, [`OpenLoop`]), for a robot of 6 joints: the joints of another run replayed in
+/// another model or solver, which then see the same motion.
+///
+/// # Errors
+/// [`RunError::Setup`] if the scene cannot be set up.
+pub fn replay(scene: &Scene, joints: Vec<[f64; 6]>) -> Result<RunResult, RunError> {
+    let setup = Setup::<6>::build(scene)?;
+    let opts = RunOptions {
+        steps: Some(joints.len()),
+        ..RunOptions::default()
+    };
+    let mut open = OpenLoop::new(setup.robot.clone(), setup.inverse, joints);
+    run_setup(setup, &opts, &mut open, |_| {})
+}
+
 /// [`run_with`] on a scene already set up (e.g. built or changed in code).
 ///
 /// # Errors
