@@ -16,23 +16,15 @@
 //! `--set FIELD=VALUE` (repeatable) changes the replayed pipeline, as `needle run --set` does.
 //!
 //! Prints one row per scene and the count of scenes within 0.05 mm on all three; exits 1 if a
-//! scene cannot be set up or run.
+//! scene cannot be set up or run. `needle report` prints the same comparison for the default
+//! pipeline and the linear far field side by side (`needle_host::accuracy` is the code of
+//! both).
 
-use needle_host::run::{RunOptions, RunSummary, replay, run};
+use needle_host::accuracy::{AccuracyCost, TOLERANCE_MM, exact_run, replayed};
 use needle_host::scene::Scene;
 use needle_host::suite::{SuiteOptions, scene_list};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
-
-/// The exact step's overrides.
-const EXACT: [(&str, &str); 3] = [
-    ("solver.background_factorization", "false"),
-    ("solver.factor_precision", "\"double\""),
-    ("solver.far_elements", "\"corotational\""),
-];
-
-/// The tolerance of issue "speed" on e_mean, e_max and e_final [mm].
-const TOLERANCE_MM: f64 = 0.05;
 
 /// A scene by embedded name or file.
 fn load(name: &str, file: Option<&Path>) -> Result<Scene, String> {
@@ -55,23 +47,10 @@ fn default_scenes() -> Vec<(String, Option<PathBuf>)> {
     scene_list(&opts).unwrap_or_default()
 }
 
-/// The exact closed loop's summary and the default pipeline's replay of its joints.
-fn compare(scene: &Scene) -> Result<(RunSummary, RunSummary), String> {
-    let exact_overrides: Vec<(String, String)> = (EXACT.iter())
-        .map(|(f, v)| (f.to_string(), v.to_string()))
-        .collect();
-    let exact = scene
-        .with_overrides(&exact_overrides)
-        .map_err(|e| e.to_string())?;
-    let closed = run(&exact, &RunOptions::default(), |_| {}).map_err(|e| e.to_string())?;
-    let joints: Vec<[f64; 6]> = (closed.reports.iter())
-        .map(|r| {
-            r.q.to_array::<6>()
-                .ok_or("only 6-joint arms are replayed here")
-        })
-        .collect::<Result<_, _>>()?;
-    let replayed = replay(scene, joints).map_err(|e| e.to_string())?;
-    Ok((closed.summary, replayed.summary))
+/// The exact closed loop and the default pipeline's replay of its joints.
+fn compare(scene: &Scene) -> Result<AccuracyCost, String> {
+    let exact = exact_run(scene, None).map_err(|e| e.to_string())?;
+    replayed(scene, &exact).map_err(|e| e.to_string())
 }
 
 fn main() -> ExitCode {
@@ -117,19 +96,18 @@ fn main() -> ExitCode {
         let result = load(name, file.as_deref())
             .and_then(|scene| scene.with_overrides(&overrides).map_err(|e| e.to_string()))
             .and_then(|scene| compare(&scene));
-        let (a, b) = match result {
-            Ok(pair) => pair,
+        let cost = match result {
+            Ok(cost) => cost,
             Err(e) => {
                 eprintln!("{name}: {e}");
                 failed += 1;
                 continue;
             }
         };
-        let triple = |s: &RunSummary| [s.e_mean_mm, s.e_max_mm, s.e_final_mm];
-        let (ta, tb) = (triple(&a), triple(&b));
-        let diff = (0..3).map(|k| (ta[k] - tb[k]).abs()).fold(0.0, f64::max);
+        let (a, b) = (cost.exact, cost.pipeline);
+        let diff = cost.largest_difference_mm();
         total += 1;
-        if diff <= TOLERANCE_MM {
+        if cost.within(TOLERANCE_MM) {
             within += 1;
         }
         if !(diff <= worst.0) {
@@ -137,7 +115,7 @@ fn main() -> ExitCode {
         }
         println!(
             "| `{short}` | {:.3} / {:.3} / {:.3} | {:.3} / {:.3} / {:.3} | {diff:.3} |",
-            ta[0], ta[1], ta[2], tb[0], tb[1], tb[2]
+            a.e_mean_mm, a.e_max_mm, a.e_final_mm, b.e_mean_mm, b.e_max_mm, b.e_final_mm
         );
     }
     println!(

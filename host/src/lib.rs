@@ -5,6 +5,7 @@
 //! [`step::Pipeline`] steps the world through a transport to the core ([`step`]: the paper's
 //! Algorithm 1); [`run`] loops over the steps with its observers (metrics, VTK, summary).
 
+pub mod accuracy;
 mod bounded_read;
 pub mod compliance;
 pub mod constraints;

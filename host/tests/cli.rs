@@ -296,3 +296,26 @@ fn compare_reads_two_suite_runs_and_names_a_lost_target() {
         stderr(&o)
     );
 }
+
+#[test]
+fn report_with_a_missing_suite_folder_fails_before_any_run_naming_it() {
+    let dir = tmp("report-suite");
+    let missing = dir.path().join("no-such-suite");
+    let o = needle()
+        .args(["report", "--quiet", "--out"])
+        .arg(dir.path().join("report"))
+        .arg("--suite")
+        .arg(&missing)
+        .output()
+        .expect("run");
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    let err = stderr(&o);
+    assert!(
+        err.contains("suite folder") && err.contains("no-such-suite"),
+        "{err}"
+    );
+    assert!(
+        !dir.path().join("report/summary.md").exists(),
+        "no report from a missing folder"
+    );
+}

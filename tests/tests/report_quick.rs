@@ -1,7 +1,7 @@
 //! The quick benchmark report (`needle report --quick`) end to end: every promised file exists
 //! and is non-empty, `runs.csv` has one row per run, the charts are real SVG and PNG files.
 
-use needle_host::report::{Group, ReportOptions, report};
+use needle_host::report::{ACCURACY_SECTION_TITLE, Group, ReportOptions, report};
 use std::path::{Path, PathBuf};
 
 /// A fresh folder under the system's temporary folder, removed on drop.
@@ -38,6 +38,7 @@ fn quick_report_writes_every_promised_file() {
         quick: true,
         steps: None,
         progress: false,
+        suite: None,
     })
     .expect("the quick report is written");
 
@@ -60,6 +61,7 @@ fn quick_report_writes_every_promised_file() {
         "summary.md",
         "runs.csv",
         "error_vs_depth.csv",
+        "accuracy_cost.csv",
         "report.json",
         "error_vs_depth.svg",
         "error_vs_depth.png",
@@ -98,6 +100,35 @@ fn quick_report_writes_every_promised_file() {
         assert!(md.contains(g.title()), "summary.md lacks the table {g:?}");
     }
     assert!(md.contains("The paper's figures"));
+
+    // The accuracy cost: both benchmarks, the default pipeline replaying the exact step's joints
+    // within the tolerance of issue "speed" (the 600-node gel, 250 steps), in the summary and
+    // in accuracy_cost.csv (a header and a row per scene and pipeline).
+    assert!(
+        md.contains(ACCURACY_SECTION_TITLE),
+        "summary.md lacks the accuracy cost"
+    );
+    let scenes: Vec<&str> = summary.accuracy.iter().map(|r| r.scene.as_str()).collect();
+    assert_eq!(scenes, ["simple", "complex"]);
+    for r in &summary.accuracy {
+        assert!(r.failure.is_none(), "{}: {:?}", r.scene, r.failure);
+        assert_eq!(
+            r.pipelines.len(),
+            1,
+            "the quick set compares the default only"
+        );
+        let cost = r.pipelines[0].cost.expect("the default pipeline replayed");
+        assert_eq!(cost.steps, 250);
+        assert!(
+            cost.within(0.05),
+            "{}: the default pipeline {:.4} mm off the exact step",
+            r.scene,
+            cost.largest_difference_mm()
+        );
+    }
+    let acc = String::from_utf8(read(&out, "accuracy_cost.csv")).expect("UTF-8");
+    assert_eq!(acc.lines().count(), 1 + summary.accuracy.len());
+    assert!(acc.starts_with("scene,pipeline,steps,"));
 
     for chart in ["error_vs_depth", "stage_times", "speed_vs_error"] {
         let svg = String::from_utf8(read(&out, &format!("{chart}.svg"))).expect("UTF-8 SVG");

@@ -90,6 +90,11 @@ enum Command {
         /// No progress on stderr.
         #[arg(long)]
         quiet: bool,
+        /// The scene folder whose scenes the accuracy-cost section measures beside the
+        /// benchmarks [default: scenes/suite when it exists, else the benchmarks only; the
+        /// quick set: the benchmarks only].
+        #[arg(long, value_name = "DIR")]
+        suite: Option<PathBuf>,
     },
 }
 
@@ -784,11 +789,13 @@ fn main() -> ExitCode {
             quick,
             steps,
             quiet,
+            suite,
         } => report_cmd(&ReportOptions {
             out_dir: out,
             quick,
             steps,
             progress: !quiet,
+            suite: suite.or_else(needle_host::report::default_suite),
         }),
         Command::Run(a) => run_cmd(a),
         Command::Suite(a) => suite_cmd(&a),

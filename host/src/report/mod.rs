@@ -12,9 +12,15 @@
 //! Runs that are the same simulation (e.g. the complex scene at 1500 nodes and δq = 0.01 in the
 //! controllers, mesh and δq groups) run once and appear in every group they belong to.
 //!
-//! Files: `summary.md` (a table per group, the paper's reference figures in a table of their own),
-//! `runs.csv` (one row per run), `error_vs_depth.csv` (every run's error at every step inside the
-//! gel), `report.json` (everything above as JSON), and (with the default `charts` feature) three
+//! Beside the groups, the gel pipeline's **accuracy cost** ([`crate::accuracy`]): the benchmarks
+//! and the scenes of [`ReportOptions::suite`] each run closed loop with the exact step, their
+//! joints replayed open loop through the default pipeline and the linear far field (the quick
+//! set: the benchmarks, the default only).
+//!
+//! Files: `summary.md` (a table per group, the paper's reference figures in a table of their own,
+//! the accuracy cost), `runs.csv` (one row per run), `error_vs_depth.csv` (every run's error at
+//! every step inside the gel), `accuracy_cost.csv` (a row per scene and pipeline),
+//! `report.json` (everything above as JSON), and (with the default `charts` feature) three
 //! charts as SVG and PNG:
 //! `error_vs_depth` (the paper's Fig. 7, with its e_mean and e_max as reference lines),
 //! `stage_times` (Fig. 8: the stage means of a step stacked per mesh size, adding up to the mean
@@ -25,12 +31,15 @@
 //! the steps it ran; it never aborts the report. The charts draw their text with DejaVu Sans,
 //! embedded in the binary (no system font is needed).
 
+mod accuracy;
 #[cfg(feature = "charts")]
 pub(crate) mod charts;
 mod csv;
 mod plan;
 mod runner;
 mod tables;
+
+pub use accuracy::{AccuracyRow, PipelineCost, SECTION_TITLE as ACCURACY_SECTION_TITLE};
 
 use crate::output::{OutputError, OutputFailure};
 use crate::run::{ControllerKind, RunSummary};
@@ -51,6 +60,10 @@ pub struct ReportOptions {
     pub steps: Option<usize>,
     /// Progress on stderr: a bar, and one line per finished run.
     pub progress: bool,
+    /// The suite folder whose scenes, beside the benchmarks, the accuracy-cost section
+    /// measures (the quick set: the benchmarks only). Default: `scenes/suite` when that
+    /// folder exists, else none.
+    pub suite: Option<PathBuf>,
 }
 
 impl Default for ReportOptions {
@@ -60,8 +73,15 @@ impl Default for ReportOptions {
             quick: false,
             steps: None,
             progress: true,
+            suite: default_suite(),
         }
     }
+}
+
+/// `scenes/suite` when it is a folder (the report run from the repository), else none.
+pub fn default_suite() -> Option<PathBuf> {
+    let dir = PathBuf::from("scenes/suite");
+    dir.is_dir().then_some(dir)
 }
 
 /// Steps per run of the quick report: 25 mm of path, i.e. ≈ 15 mm into the gel.
@@ -213,6 +233,10 @@ pub struct ReportSummary {
     pub steps_cap: Option<usize>,
     /// Every run, in order.
     pub runs: Vec<ReportRun>,
+    /// The suite folder of the accuracy-cost section (none: the benchmarks only).
+    pub suite: Option<PathBuf>,
+    /// The accuracy-cost section: a row per scene.
+    pub accuracy: Vec<AccuracyRow>,
     /// Every file written.
     pub files: Vec<PathBuf>,
     /// Wall time of the whole report [s].
@@ -238,6 +262,15 @@ pub enum ReportError {
     /// A file or folder could not be written.
     #[error(transparent)]
     Output(#[from] OutputError),
+    /// The suite folder of the accuracy-cost section cannot be listed.
+    #[error("suite folder {}", dir.display())]
+    Suite {
+        /// The folder.
+        dir: PathBuf,
+        /// Why.
+        #[source]
+        source: std::io::Error,
+    },
     /// A chart could not be drawn (the plotting backend's error, as text: it is not `Send`).
     #[error("chart {}: {reason}", file.display())]
     Chart {
@@ -272,12 +305,26 @@ pub fn report(opts: &ReportOptions) -> Result<ReportSummary, ReportError> {
         .steps
         .or(if opts.quick { Some(QUICK_STEPS) } else { None });
     let mut runs = plan::planned_runs(opts.quick)?;
-    runner::run_all(&mut runs, steps_cap, opts.progress);
+    let suite = if opts.quick { None } else { opts.suite.clone() };
+    let accuracy_scenes = accuracy::scenes(suite.as_deref())?;
+    let bar = runner::progress_bar(runs.len() + accuracy_scenes.len(), opts.progress);
+    runner::run_all(&mut runs, steps_cap, &bar, opts.progress);
+    let accuracy = accuracy::run_accuracy(
+        &accuracy_scenes,
+        opts.quick,
+        &plan::base(opts.quick),
+        steps_cap,
+        &bar,
+        opts.progress,
+    );
+    bar.finish_and_clear();
     let mut summary = ReportSummary {
         out_dir: opts.out_dir.clone(),
         quick: opts.quick,
         steps_cap,
         runs: runs.into_iter().map(|(r, _)| r).collect(),
+        suite,
+        accuracy,
         files: Vec::new(),
         wall_s: 0.0,
     };
@@ -296,6 +343,9 @@ fn write_outputs(s: &mut ReportSummary) -> Result<(), ReportError> {
     files.push(p);
     let p = dir.join("error_vs_depth.csv");
     csv::write_error_csv(&p, &s.runs)?;
+    files.push(p);
+    let p = dir.join("accuracy_cost.csv");
+    accuracy::write_csv(&p, &s.accuracy)?;
     files.push(p);
 
     #[cfg(feature = "charts")]

@@ -16,7 +16,7 @@ pub(super) struct Spec {
 }
 
 /// Scene overrides shared by every run (the quick set: the 600-node mesh).
-fn base(quick: bool) -> Vec<(String, String)> {
+pub(super) fn base(quick: bool) -> Vec<(String, String)> {
     if quick {
         vec![("gel.box.nodes".into(), "600".into())]
     } else {

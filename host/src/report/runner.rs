@@ -8,33 +8,47 @@ use indicatif::{ProgressBar, ProgressStyle};
 use std::time::Instant;
 
 /// Runs every planned run (at most `steps_cap` steps each), filling its summary or failure.
-pub(super) fn run_all(runs: &mut [(ReportRun, Scene)], steps_cap: Option<usize>, progress: bool) {
+pub(super) fn run_all(
+    runs: &mut [(ReportRun, Scene)],
+    steps_cap: Option<usize>,
+    bar: &ProgressBar,
+    progress: bool,
+) {
+    let total = runs.len();
+    for (r, scene) in runs.iter_mut() {
+        let what = format!("{} · {}", r.label(), parameters(r));
+        run_one(r, scene, steps_cap, bar, &what);
+        let line = format!("[{}/{total}] {what}: {}", r.id + 1, outcome(r));
+        print_line(bar, progress, line);
+        bar.inc(1);
+    }
+}
+
+/// The report's progress bar over `len` items (hidden without `progress`).
+pub(super) fn progress_bar(len: usize, progress: bool) -> ProgressBar {
     let bar = if progress {
-        ProgressBar::new(runs.len() as u64)
+        ProgressBar::new(len as u64)
     } else {
         ProgressBar::hidden()
     };
     bar.set_style(
-        ProgressStyle::with_template("{elapsed_precise} [{bar:30}] {pos}/{len} runs  {msg}")
+        ProgressStyle::with_template("{elapsed_precise} [{bar:30}] {pos}/{len}  {msg}")
             .unwrap_or_else(|_| ProgressStyle::default_bar())
             .progress_chars("=> "),
     );
-    let total = runs.len();
-    for (r, scene) in runs.iter_mut() {
-        let what = format!("{} · {}", r.label(), parameters(r));
-        run_one(r, scene, steps_cap, &bar, &what);
-        let line = format!("[{}/{total}] {what}: {}", r.id + 1, outcome(r));
-        if bar.is_hidden() {
-            if progress {
-                // Progress for a log without a terminal (CI): a line per run, like the bar's.
-                eprintln!("{line}");
-            }
-        } else {
-            bar.println(line);
+    bar
+}
+
+/// A line on a finished item: above the bar, or on stderr when the bar is hidden because
+/// stderr is not a terminal (a CI log); nothing without `progress`.
+pub(super) fn print_line(bar: &ProgressBar, progress: bool, line: String) {
+    if bar.is_hidden() {
+        if progress {
+            eprintln!("{line}");
         }
-        bar.inc(1);
+    } else {
+        bar.println(line);
     }
-    bar.finish_and_clear();
 }
 
 /// The run's distinct parameters, `a / b`.

@@ -15,6 +15,7 @@ pub(super) fn summary_markdown(s: &ReportSummary, files: &[PathBuf], charts: boo
     for g in Group::ALL {
         group_table(&mut md, s, g);
     }
+    super::accuracy::markdown(&mut md, &s.accuracy, s.suite.as_deref(), s.quick);
     if charts {
         chart_list(&mut md);
     }
@@ -28,7 +29,8 @@ fn intro(md: &mut String, s: &ReportSummary) {
     let _ = writeln!(md, "# Benchmark report\n");
     let _ = writeln!(
         md,
-        "Produced by `needle report{}{}` — {} simulation runs, {:.0} s. Every figure in the \
+        "Produced by `needle report{}{}` — {} simulation runs, {:.0} s, and the accuracy cost \
+         of the gel pipeline on {} scenes, {:.0} s. Every figure in the \
          tables below is measured by that command; **the paper's figures are only in the table \
          \"The paper's figures\"** and are marked as the paper's wherever they appear.\n",
         if s.quick { " --quick" } else { "" },
@@ -38,6 +40,8 @@ fn intro(md: &mut String, s: &ReportSummary) {
         },
         s.runs.len(),
         s.runs.iter().map(|r| r.wall_s).sum::<f64>(),
+        s.accuracy.len(),
+        s.accuracy.iter().map(|r| r.wall_s).sum::<f64>(),
     );
     let _ = writeln!(md, "{}\n", crate::provenance::Provenance::now().sentence());
     if s.quick {
