@@ -36,7 +36,7 @@ pub use correct::ConstraintForce;
 pub use params::{Insertion, Interaction, StepParams, TargetMotion};
 
 use crate::compliance::{NodeColumns, PointColumns, PointMap};
-use crate::constraints::{ConstraintSet, GroupRole, Model};
+use crate::constraints::{ClearanceObservation, ConstraintSet, GroupRole, Model, Observation};
 use crate::error::{Body, CommandMismatch, NonFiniteAt, SimError};
 use crate::joints::{Joints, MAX_JOINTS, normalised_limit_margin};
 use crate::proximity::{CachedProjector, Embedded};
@@ -194,6 +194,10 @@ pub struct Pipeline<const N: usize = 6> {
     /// near block, keeps the steps after it whole, and their columns cached, until one does
     /// not).
     defer_next: bool,
+    /// This step's observations and clearance observations when the deferral check made them
+    /// from the free positions the frame is then built from (taken by the compliance stage,
+    /// which otherwise makes them).
+    observed: Option<([Observation; 5], Vec<ClearanceObservation>)>,
     /// The stage times of the last step.
     pub times: StageTimes,
 }
@@ -224,6 +228,7 @@ impl<const N: usize> Pipeline<N> {
             surface: CachedProjector::default(),
             far_pending: false,
             defer_next: true,
+            observed: None,
             times: StageTimes::default(),
         }
     }
@@ -298,9 +303,12 @@ impl<const N: usize> Pipeline<N> {
         // deferred solves are exact; otherwise the free motion is finished now and the rows
         // built again from the whole free positions, the near-only columns dropped, and the
         // next steps solve whole until a frame lies on the near rows again.
+        self.observed = None;
         let near = !world.gel.defers_far() || self.frame_is_near(world, c, params);
         self.defer_next = near;
         if self.far_pending && !near {
+            // The free positions change: the observations are made again from them.
+            self.observed = None;
             world
                 .gel
                 .complete_far(&mut self.gel_dx)
@@ -388,7 +396,8 @@ impl<const N: usize> Pipeline<N> {
 
     /// Whether every gel point this step's frame uses (the rows' points, the observed ones)
     /// lies on dofs the deferred solves give exactly.
-    fn frame_is_near(&self, world: &World<N>, c: f64, params: &StepParams) -> bool {
+    /// Keeps the observations it makes for the compliance stage.
+    fn frame_is_near(&mut self, world: &World<N>, c: f64, params: &StepParams) -> bool {
         let gel = &world.gel;
         let near = |map: &PointMap| {
             map.used()
@@ -397,11 +406,13 @@ impl<const N: usize> Pipeline<N> {
         };
         let observed = observe::observations(world, &self.free, c);
         let clearances = observe::clearance_observations(world, &self.free, params.max_base_step);
-        self.set.gel.points.iter().all(|p| near(&p.map))
+        let is_near = self.set.gel.points.iter().all(|p| near(&p.map))
             && (observed.iter())
                 .chain(clearances.iter().flat_map(|o| o.obstacle.iter()))
                 .filter(|o| o.model == Model::Gel)
-                .all(|o| near(&o.map))
+                .all(|o| near(&o.map));
+        self.observed = Some((observed, clearances));
+        is_near
     }
 
     /// The free positions of both bodies from the free motions, checked finite.
@@ -464,9 +475,14 @@ impl<const N: usize> Pipeline<N> {
             .gel
             .compute_missing(ng, |r, k| solve_gel(gel, near, r, k))
             .map_err(SimError::in_compliance(Body::Gel))?;
-        let observations = observe::observations(world, &self.free, c);
+        let (observations, clearances) = match self.observed.take() {
+            Some(made) => made,
+            None => (
+                observe::observations(world, &self.free, c),
+                observe::clearance_observations(world, &self.free, params.max_base_step),
+            ),
+        };
         self.set.fill_frame(&observations, &mut self.frame);
-        let clearances = observe::clearance_observations(world, &self.free, params.max_base_step);
         self.set.fill_clearances(&clearances, &mut self.frame);
         observe::fill_header(
             &mut self.frame,
