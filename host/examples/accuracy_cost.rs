@@ -110,7 +110,7 @@ fn main() -> ExitCode {
         if cost.within(TOLERANCE_MM) {
             within += 1;
         }
-        if !(diff <= worst.0) {
+        if diff.is_nan() || diff > worst.0 {
             worst = (diff, short.clone());
         }
         println!(

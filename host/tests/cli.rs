@@ -1,7 +1,6 @@
 //! The `needle` command line as a user meets it: traps found by trying it (issue "trust"), each
 //! test named after what broke.
 
-use std::path::PathBuf;
 use std::process::{Command, Output, Stdio};
 
 fn needle() -> Command {
@@ -57,7 +56,7 @@ fn embedded_scene_runs_beside_a_folder_of_the_same_name() {
     let guard = tmp("folder");
     let dir = guard.path();
     std::fs::create_dir_all(dir.join("simple")).expect("folder `simple`");
-    let o = short_run(&[]).current_dir(&dir).output().expect("run");
+    let o = short_run(&[]).current_dir(dir).output().expect("run");
     let err = stderr(&o);
     assert!(!err.contains("Is a directory"), "{err}");
     assert!(!err.contains("cannot read"), "{err}");
@@ -94,7 +93,7 @@ fn run_with_out_writes_a_replay_with_its_first_and_last_frames() {
     let dir = guard.path();
     let o = short_run(&["--steps", "47"])
         .arg("--out")
-        .arg(&dir)
+        .arg(dir)
         .output()
         .expect("run");
     assert!(!matches!(o.status.code(), Some(1 | 2)), "{}", stderr(&o));
@@ -117,7 +116,7 @@ fn vtk_frames_include_the_last_step_and_a_pvd_with_their_times() {
     let dir = guard.path();
     let o = short_run(&["--steps", "47", "--vtk-every", "20"])
         .arg("--out")
-        .arg(&dir)
+        .arg(dir)
         .output()
         .expect("run");
     assert!(!matches!(o.status.code(), Some(1 | 2)), "{}", stderr(&o));

@@ -242,10 +242,10 @@ fn laws_hold(frame: &ComplianceFrame<M>, lambda: &[f64; M], tol: f64) -> Result<
             ))
         };
         match GroupKind::from_raw(g.kind) {
-            Some(GroupKind::Bilateral) => {
-                if w[s..s + g.len as usize].iter().any(|x| x.abs() > tol) {
-                    return fail("bilateral row open");
-                }
+            Some(GroupKind::Bilateral)
+                if w[s..s + g.len as usize].iter().any(|x| x.abs() > tol) =>
+            {
+                return fail("bilateral row open");
             }
             Some(GroupKind::Contact) => {
                 let (n, t) = (lambda[s], lambda[s + 1].hypot(lambda[s + 2]));

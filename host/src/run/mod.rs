@@ -339,7 +339,7 @@ pub fn replay(scene: &Scene, joints: Vec<[f64; 6]>) -> Result<RunResult, RunErro
         steps: Some(joints.len()),
         ..RunOptions::default()
     };
-    let mut open = OpenLoop::new(setup.robot.clone(), setup.inverse, joints);
+    let mut open = OpenLoop::new(setup.robot, setup.inverse, joints);
     run_setup(setup, &opts, &mut open, |_| {})
 }
 

@@ -174,7 +174,7 @@ pub fn clearance_observations<const N: usize>(
                             dist - r,
                             ClearanceObservation {
                                 needle: needle_at(j, g),
-                                obstacle: vec![centre.clone()],
+                                obstacle: vec![centre],
                                 clearance: dist - r,
                                 normal: current / dist,
                                 current,

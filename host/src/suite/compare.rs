@@ -220,7 +220,7 @@ pub fn compare(
         } else {
             !same(ca, cb)
         };
-        if clearance_moved && !(ca > cb) {
+        if clearance_moved && ca.partial_cmp(&cb) != Some(std::cmp::Ordering::Greater) {
             c.closer.push(name.clone());
         }
         if a.outcome != b.outcome || (0..3).any(moved_by) || clearance_moved {
@@ -385,7 +385,7 @@ mod tests {
         let tmp = temp_dir("names");
         let dir = tmp.path();
         let before = write(
-            &dir,
+            dir,
             "before.json",
             &[
                 row("same", "default", "reached", [0.1, 0.2, 0.01], None),
@@ -403,7 +403,7 @@ mod tests {
             ],
         );
         let after = write(
-            &dir,
+            dir,
             "after.json",
             &[
                 row("same", "default", "reached", [0.1, 0.2, 0.01], None),
@@ -449,7 +449,7 @@ mod tests {
         let dir = tmp.path();
         let e = [0.1, 0.2, 0.01];
         let before = write(
-            &dir,
+            dir,
             "before.json",
             &[
                 row("closer", "default", "reached", e, Some(0.5)),
@@ -459,7 +459,7 @@ mod tests {
             ],
         );
         let after = write(
-            &dir,
+            dir,
             "after.json",
             &[
                 row("closer", "default", "reached", e, Some(0.2)),
@@ -499,17 +499,17 @@ mod tests {
         let e = load(&missing, "default").unwrap_err().to_string();
         assert!(e.starts_with(&missing.display().to_string()), "{e}");
         let text = &dir.join("text.json");
-        std::fs::write(&text, "scene,e_mean\n").unwrap();
-        let e = load(&text, "default").unwrap_err().to_string();
+        std::fs::write(text, "scene,e_mean\n").unwrap();
+        let e = load(text, "default").unwrap_err().to_string();
         assert!(e.contains("text.json") && e.contains("not JSON"), "{e}");
-        let object = write(&dir, "object.json", &[]);
+        let object = write(dir, "object.json", &[]);
         std::fs::write(&object, "{}").unwrap();
         let e = load(&object, "default").unwrap_err().to_string();
         assert!(e.contains("expected a JSON array"), "{e}");
         let mut bad = row("arc", "default", "reached", [0.1, 0.2, 0.3], None);
         bad["summary"]["e_max_mm"] = Value::from("big");
         let bad = write(
-            &dir,
+            dir,
             "bad.json",
             &[row("ok", "default", "reached", [0.0; 3], None), bad],
         );
@@ -521,7 +521,7 @@ mod tests {
         let e = load(&bad, "nobody").unwrap_err().to_string();
         assert!(e.contains("no row of controller `nobody`"), "{e}");
         let twice = write(
-            &dir,
+            dir,
             "twice.json",
             &[
                 row("a", "default", "reached", [0.0; 3], None),
