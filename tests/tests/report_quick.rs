@@ -1,7 +1,7 @@
 //! The quick benchmark report (`needle report --quick`) end to end: every promised file exists
 //! and is non-empty, `runs.csv` has one row per run, the charts are real SVG and PNG files.
 
-use needle_host::report::{ACCURACY_SECTION_TITLE, Group, ReportOptions, report};
+use needle_host::report::{ACCURACY_SECTION_TITLE, Group, ReportOptions, accuracy_summary, report};
 use std::path::{Path, PathBuf};
 
 /// A fresh folder under the system's temporary folder, removed on drop.
@@ -126,6 +126,17 @@ fn quick_report_writes_every_promised_file() {
             cost.largest_difference_mm()
         );
     }
+    let lines = accuracy_summary(&summary.accuracy);
+    assert_eq!(lines.len(), 1, "{lines:?}");
+    assert!(
+        lines[0].starts_with("default pipeline: 2 of 2 scenes within 0.05 mm"),
+        "{}",
+        lines[0]
+    );
+    assert!(
+        md.contains(&lines[0]),
+        "the summary's line is the section's"
+    );
     let acc = String::from_utf8(read(&out, "accuracy_cost.csv")).expect("UTF-8");
     assert_eq!(acc.lines().count(), 1 + summary.accuracy.len());
     assert!(acc.starts_with("scene,pipeline,steps,"));

@@ -634,6 +634,9 @@ fn report_cmd(opts: &ReportOptions) -> ExitCode {
                 r.wall_s,
                 r.out_dir.display()
             );
+            for line in needle_host::report::accuracy_summary(&r.accuracy) {
+                println!("accuracy cost, {line}");
+            }
             for f in &r.files {
                 println!("  {}", f.display());
             }

@@ -214,9 +214,6 @@ pub(super) fn markdown(md: &mut String, rows: &[AccuracyRow], suite: Option<&Pat
     }
     let _ = writeln!(md);
     let _ = writeln!(md, "|---|---|{}", "---|---|".repeat(names.len()));
-    let mut within = vec![0usize; names.len()];
-    let mut worst = vec![(0.0f64, String::new()); names.len()];
-    let mut ran = vec![0usize; names.len()];
     for r in rows {
         let exact = (r.pipelines.iter()).find_map(|p| p.cost.as_ref().map(|c| c.exact));
         let _ = write!(
@@ -229,23 +226,15 @@ pub(super) fn markdown(md: &mut String, rows: &[AccuracyRow], suite: Option<&Pat
                 (None, None) => "—".into(),
             }
         );
-        for (k, n) in names.iter().enumerate() {
+        for n in &names {
             match r.pipelines.iter().find(|p| &p.pipeline == n) {
                 Some(PipelineCost { cost: Some(c), .. }) => {
-                    let d = c.largest_difference_mm();
-                    ran[k] += 1;
-                    if c.within(TOLERANCE_MM) {
-                        within[k] += 1;
-                    }
-                    if d.is_nan() || d > worst[k].0 {
-                        worst[k] = (d, r.scene.clone());
-                    }
                     let bold = if c.within(TOLERANCE_MM) { "" } else { "**" };
                     let _ = write!(
                         md,
                         " {} | {bold}{}{bold} |",
                         triple(&c.pipeline),
-                        fmt_f(d, 3)
+                        fmt_f(c.largest_difference_mm(), 3)
                     );
                 }
                 Some(PipelineCost {
@@ -261,23 +250,51 @@ pub(super) fn markdown(md: &mut String, rows: &[AccuracyRow], suite: Option<&Pat
         let _ = writeln!(md);
     }
     let _ = writeln!(md);
-    for (k, n) in names.iter().enumerate() {
-        let _ = writeln!(
-            md,
-            "- {n}: **{} of {} scenes** within {TOLERANCE_MM} mm of the exact step on all three; \
-             the largest difference {} mm (`{}`){}.",
-            within[k],
-            rows.len(),
-            fmt_f(worst[k].0, 3),
-            worst[k].1,
-            if ran[k] < rows.len() {
-                format!("; {} scenes could not run", rows.len() - ran[k])
-            } else {
-                String::new()
-            }
-        );
+    for line in summary_lines(rows) {
+        let _ = writeln!(md, "- {line}.");
     }
     let _ = writeln!(md);
+}
+
+/// One line per pipeline: how many scenes it keeps within [`TOLERANCE_MM`] of the exact step
+/// on e_mean, e_max and e_final, and its largest difference (`default pipeline: 33 of 33
+/// scenes within 0.05 mm of the exact step on all three; the largest difference 0.007 mm
+/// (`arc_xy`)`).
+pub fn summary_lines(rows: &[AccuracyRow]) -> Vec<String> {
+    (pipeline_names(rows).iter())
+        .map(|n| {
+            let (mut within, mut ran) = (0usize, 0usize);
+            let mut worst = (0.0f64, String::new());
+            for r in rows {
+                let Some(c) = (r.pipelines.iter())
+                    .find(|p| &p.pipeline == n)
+                    .and_then(|p| p.cost.as_ref())
+                else {
+                    continue;
+                };
+                ran += 1;
+                if c.within(TOLERANCE_MM) {
+                    within += 1;
+                }
+                let d = c.largest_difference_mm();
+                if d.is_nan() || d > worst.0 {
+                    worst = (d, r.scene.clone());
+                }
+            }
+            format!(
+                "{n}: {within} of {} scenes within {TOLERANCE_MM} mm of the exact step on all \
+                 three; the largest difference {} mm (`{}`){}",
+                rows.len(),
+                fmt_f(worst.0, 3),
+                worst.1,
+                if ran < rows.len() {
+                    format!("; {} scenes could not run", rows.len() - ran)
+                } else {
+                    String::new()
+                }
+            )
+        })
+        .collect()
 }
 
 /// The section's title in `summary.md`.

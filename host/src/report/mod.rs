@@ -39,7 +39,10 @@ mod plan;
 mod runner;
 mod tables;
 
-pub use accuracy::{AccuracyRow, PipelineCost, SECTION_TITLE as ACCURACY_SECTION_TITLE};
+pub use accuracy::{
+    AccuracyRow, PipelineCost, SECTION_TITLE as ACCURACY_SECTION_TITLE,
+    summary_lines as accuracy_summary,
+};
 
 use crate::output::{OutputError, OutputFailure};
 use crate::run::{ControllerKind, RunSummary};
