@@ -22,17 +22,9 @@
 
 use needle_host::accuracy::{AccuracyCost, TOLERANCE_MM, exact_run, replayed};
 use needle_host::scene::Scene;
-use needle_host::suite::{SuiteOptions, scene_list};
+use needle_host::suite::{SuiteOptions, load_scene, scene_list};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
-
-/// A scene by embedded name or file.
-fn load(name: &str, file: Option<&Path>) -> Result<Scene, String> {
-    match file {
-        Some(f) => Scene::load(f).map_err(|e| e.to_string()),
-        None => Scene::builtin(name).ok_or_else(|| format!("no embedded scene `{name}`")),
-    }
-}
 
 /// The scenes `needle suite` runs: the benchmarks, then `scenes/suite/` in name order.
 fn default_scenes() -> Vec<(String, Option<PathBuf>)> {
@@ -93,7 +85,7 @@ fn main() -> ExitCode {
             .as_deref()
             .and_then(Path::file_stem)
             .map_or_else(|| name.clone(), |s| s.to_string_lossy().into_owned());
-        let result = load(name, file.as_deref())
+        let result = load_scene(name, file.as_deref())
             .and_then(|scene| scene.with_overrides(&overrides).map_err(|e| e.to_string()))
             .and_then(|scene| compare(&scene));
         let cost = match result {

@@ -5,7 +5,7 @@
 use super::{ReportError, fmt_f, out_err};
 use crate::accuracy::{AccuracyCost, ExactRun, TOLERANCE_MM, exact_run, replayed};
 use crate::scene::Scene;
-use crate::suite::{SuiteOptions, scene_list};
+use crate::suite::{SuiteOptions, load_scene, scene_list};
 use indicatif::ProgressBar;
 use serde::Serialize;
 use std::fmt::Write as _;
@@ -69,18 +69,10 @@ pub(super) fn scenes(suite: Option<&Path>) -> Result<Vec<(String, Option<PathBuf
     })
 }
 
-/// The text of a panic's payload.
-fn panic_text(p: &(dyn std::any::Any + Send)) -> String {
-    p.downcast_ref::<&str>()
-        .map(|s| (*s).to_owned())
-        .or_else(|| p.downcast_ref::<String>().cloned())
-        .unwrap_or_else(|| "unknown panic".into())
-}
-
 /// Runs `f`, a panic turned into an error.
 fn guarded<T>(f: impl FnOnce() -> Result<T, String>) -> Result<T, String> {
     std::panic::catch_unwind(std::panic::AssertUnwindSafe(f))
-        .unwrap_or_else(|p| Err(format!("panicked: {}", panic_text(&*p))))
+        .unwrap_or_else(|p| Err(format!("panicked: {}", super::runner::panic_text(&*p))))
 }
 
 /// Every scene of `list` (from [`scenes`]) with `base` overrides and at most `steps` steps,
@@ -105,11 +97,8 @@ pub(super) fn run_accuracy(
         bar.set_message(format!(
             "accuracy cost · {name}: the exact step, closed loop"
         ));
-        let scene = match file {
-            Some(f) => Scene::load(f).map_err(|e| e.to_string()),
-            None => Scene::builtin(name).ok_or_else(|| format!("no embedded scene `{name}`")),
-        }
-        .and_then(|s| s.with_overrides(base).map_err(|e| e.to_string()));
+        let scene = load_scene(name, file.as_deref())
+            .and_then(|s| s.with_overrides(base).map_err(|e| e.to_string()));
         let exact: Result<(Scene, ExactRun), String> = scene.and_then(|s| {
             guarded(|| exact_run(&s, steps).map_err(|e| e.to_string())).map(|x| (s, x))
         });
@@ -321,13 +310,7 @@ const HEADER: [&str; 13] = [
 /// Writes `accuracy_cost.csv`: a row per scene and pipeline (a scene whose exact run failed:
 /// one row with its failure).
 pub(super) fn write_csv(path: &Path, rows: &[AccuracyRow]) -> Result<(), ReportError> {
-    let n = |x: f64| {
-        if x.is_finite() {
-            x.to_string()
-        } else {
-            String::new()
-        }
-    };
+    let n = super::csv::n;
     let mut w = ::csv::Writer::from_path(path).map_err(|e| out_err(path, e))?;
     w.write_record(HEADER).map_err(|e| out_err(path, e))?;
     for r in rows {

@@ -58,7 +58,7 @@ const RUNS_HEADER: [&str; 48] = [
 ];
 
 /// A number, or an empty field when it is not finite.
-fn n(x: f64) -> String {
+pub(super) fn n(x: f64) -> String {
     if x.is_finite() {
         x.to_string()
     } else {

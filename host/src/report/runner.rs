@@ -94,14 +94,7 @@ fn run_one(
             r.error_by_depth = res.error_by_depth;
         }
         Ok(Err(e)) => r.failure = Some(format!("could not start: {e}")),
-        Err(p) => {
-            let msg = p
-                .downcast_ref::<&str>()
-                .map(|s| (*s).to_owned())
-                .or_else(|| p.downcast_ref::<String>().cloned())
-                .unwrap_or_else(|| "unknown panic".into());
-            r.failure = Some(format!("panicked: {msg}"));
-        }
+        Err(p) => r.failure = Some(format!("panicked: {}", panic_text(&*p))),
     }
 }
 
@@ -135,4 +128,12 @@ fn clearance_text(c: f64, name: &str) -> String {
     } else {
         format!("{c:.2} mm ({name})")
     }
+}
+
+/// The text of a panic's payload.
+pub(super) fn panic_text(p: &(dyn std::any::Any + Send)) -> String {
+    p.downcast_ref::<&str>()
+        .map(|s| (*s).to_owned())
+        .or_else(|| p.downcast_ref::<String>().cloned())
+        .unwrap_or_else(|| "unknown panic".into())
 }

@@ -125,6 +125,18 @@ pub fn scene_overrides(
         .collect()
 }
 
+/// A scene of [`scene_list`]: the file, or (`file` none) the embedded scene `name`; the error as
+/// text.
+///
+/// # Errors
+/// The file's [`crate::scene::SceneError`], or no embedded scene of that name.
+pub fn load_scene(name: &str, file: Option<&Path>) -> Result<Scene, String> {
+    match file {
+        Some(f) => Scene::load(f).map_err(|e| e.to_string()),
+        None => Scene::builtin(name).ok_or_else(|| format!("no embedded scene `{name}`")),
+    }
+}
+
 /// Runs one scene of the suite (`file` none: the embedded scene `name`) with the controller
 /// `variant`; `observe` sees every step.
 pub fn run_scene(
@@ -135,11 +147,7 @@ pub fn run_scene(
     mut observe: impl FnMut(usize),
 ) -> SuiteRow {
     let t0 = Instant::now();
-    let loaded = match file {
-        Some(f) => Scene::load(f).map_err(|e| e.to_string()),
-        None => Scene::builtin(name).ok_or_else(|| format!("no embedded scene `{name}`")),
-    };
-    let result = loaded
+    let result = load_scene(name, file)
         .and_then(|s| {
             s.with_overrides(&scene_overrides(&s, opts, variant))
                 .map_err(|e| e.to_string())
