@@ -172,10 +172,9 @@ fn main() -> ExitCode {
         scene.needle.young_modulus,
         scene.gel.young_modulus,
     );
-    let inertia = std::f64::consts::PI * d.powi(4) / 64.0;
     println!(
         "steering length (E_n I / E_gel)^(1/4) = {:.1} mm (needle Ø {d} mm, E_n {e_n} MPa, gel {e_gel} MPa)",
-        (e_n * inertia / e_gel).powf(0.25)
+        needle_host::setup::steering_length(d, e_n, e_gel)
     );
     let setup = match Setup::build(&scene) {
         Ok(s) => s,

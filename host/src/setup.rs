@@ -46,6 +46,32 @@ pub struct Plan {
     /// The target only goes in (`insertion.mode = "insert"`): a needle that leaves the gel
     /// after puncturing it did not follow the path ([`crate::run::metrics::Outcome::of`]).
     pub insert_only: bool,
+    /// The needle's steering length in the gel, [`steering_length`] of the scene's needle and
+    /// gel [mm].
+    pub steering_length_mm: f64,
+}
+
+/// The length over which a needle bends as a beam on an elastic foundation, the gel:
+/// `ℓ = (E_n I / E_gel)^(1/4)`, `I = π d⁴ / 64` (diameter `d` [mm], moduli [MPa]) [mm]. How far
+/// into the gel a motion of the needle's base still turns its tip: a base rotation's effect
+/// decays over about `ℓ`, so that deeper than a few `ℓ` the gel holds the shaft and the joints
+/// barely steer the tip sideways. On the public suite and seven held-out sets (201 runs,
+/// `docs/benchmark.md`), 26 of the 28 scenes with `ℓ` under 17.5 mm miss their target, and 6 of
+/// the other 173. It counts the gel's Young modulus only (not its Poisson ratio, nor the
+/// regions of a gel of several materials: the gel's own modulus is used).
+///
+/// # Example
+/// ```
+/// use needle_host::setup::steering_length;
+///
+/// // The benchmark's needle (Ø 1 mm steel) in its 20 kPa gel.
+/// let l = steering_length(1.0, 200_000.0, 0.02);
+/// assert!((l - (200_000.0 * std::f64::consts::PI / 64.0 / 0.02_f64).powf(0.25)).abs() < 1e-12);
+/// assert!((l - 26.5).abs() < 0.05);
+/// ```
+pub fn steering_length(diameter: f64, needle_modulus: f64, gel_modulus: f64) -> f64 {
+    let inertia = std::f64::consts::PI * diameter.powi(4) / 64.0;
+    (needle_modulus * inertia / gel_modulus).powf(0.25)
 }
 
 /// A scene, set up: the world at its start and every typed parameter; a robot of `N` joints
@@ -442,6 +468,11 @@ fn plan(scene: &Scene) -> Plan {
         vtk_every: scene.output.vtk_every,
         support_motion: None,
         insert_only: scene.insertion.mode == crate::scene::InsertionMode::Insert,
+        steering_length_mm: steering_length(
+            scene.needle.diameter,
+            scene.needle.young_modulus,
+            scene.gel.young_modulus,
+        ),
     }
 }
 

@@ -357,8 +357,8 @@ fn print_summary(s: &RunSummary, json: bool) -> ExitCode {
 
 fn print_text(s: &RunSummary) {
     println!(
-        "scene {} · controller {:?} · {} gel nodes",
-        s.scene, s.controller, s.gel_nodes
+        "scene {} · controller {:?} · {} gel nodes · needle steering length {:.1} mm",
+        s.scene, s.controller, s.gel_nodes, s.steering_length_mm
     );
     if let Some(m) = &s.support_motion {
         println!("support motion: {m}");

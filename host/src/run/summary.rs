@@ -81,6 +81,10 @@ pub struct RunSummary {
     /// direction, hidden from the controller's model or modelled); `null` in JSON when the
     /// support stays still.
     pub support_motion: Option<crate::support_motion::MotionSummary>,
+    /// The needle's steering length in the gel, `(E_n I / E_gel)^(1/4)`
+    /// ([`crate::setup::steering_length`]) [mm]: short (under about 17 mm), and the gel holds
+    /// the shaft so that the joints barely steer the tip deep inside.
+    pub steering_length_mm: f64,
     /// The build, machine and date that made this run.
     pub provenance: crate::provenance::Provenance,
     /// Steps run (a whole insertion may add settling steps after the planned ones: the target
@@ -370,6 +374,7 @@ impl Statistics {
             controller: end.controller,
             gel_nodes: world.gel.node_count(),
             support_motion: plan.support_motion.clone(),
+            steering_length_mm: plan.steering_length_mm,
             provenance: crate::provenance::Provenance::now(),
             steps: reports.len(),
             steps_planned: end.steps_planned,

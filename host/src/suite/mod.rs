@@ -273,7 +273,7 @@ fn worst_of(rows: &[&SuiteRow]) -> Vec<String> {
     ]
 }
 
-const HEADER: [&str; 15] = [
+const HEADER: [&str; 16] = [
     "scene",
     "controller",
     "outcome",
@@ -289,6 +289,7 @@ const HEADER: [&str; 15] = [
     "gs_cap_hits",
     "cpu_ms_per_step",
     "wall_ms_per_step",
+    "steering_length_mm",
 ];
 
 /// The cells of one row, in [`HEADER`]'s order.
@@ -314,6 +315,7 @@ fn cells(r: &SuiteRow) -> Vec<String> {
         s.gs_not_converged_steps.to_string(),
         cell(s.cpu_ms_per_step, 2),
         cell(s.timing.total.mean_ms, 2),
+        cell(s.steering_length_mm, 1),
     ]
 }
 
