@@ -394,6 +394,9 @@ fn csv_motion_errors_name_the_file_the_line_and_the_reason() {
 /// 5 mm every 4 s across the insertion, with the motion modelled (target: e_mean and e_final
 /// ≤ 1.0 mm) and hidden from the model. Bounds: the figures measured when this was written
 /// (modelled 0.118 / 1.255 / 0.006 mm; hidden 0.614 / 1.707 / 1.207 mm) with a small margin.
+/// Since settling ends at the first step that moves the tip away (2026-12-01), the hidden run
+/// stops one step after its planned ones, at 0.560 / 1.591 / 0.778 mm: within the reach
+/// tolerance at that breathing phase, so its outcome is no longer asserted, its errors are.
 #[test]
 #[ignore = "two complex insertions, about 40 s in release"]
 fn breathing_complex_tracks_the_moving_path_when_the_motion_is_modelled() {
@@ -427,7 +430,8 @@ fn breathing_complex_tracks_the_moving_path_when_the_motion_is_modelled() {
         "hidden: e_mean {:.3} e_max {:.3} e_final {:.4} mm, {:?}",
         h.e_mean_mm, h.e_max_mm, h.e_final_mm, h.outcome
     );
-    // The same controller blind to the motion: several times the error, the target missed.
-    assert!(h.e_mean_mm >= 0.5 && h.e_final_mm >= 1.0, "{h:?}");
-    assert_eq!(h.outcome, Outcome::MissedTarget);
+    // The same controller blind to the motion: several times the tracking error, and a hundred
+    // times the modelled run's distance to the path's end.
+    assert!(h.e_mean_mm >= 0.5 && h.e_max_mm >= 1.5, "{h:?}");
+    assert!(h.e_final_mm >= 0.5, "{h:?}");
 }
