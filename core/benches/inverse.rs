@@ -2,9 +2,11 @@
 //! and the full capacity 192 on seeded random frames. The controller warm-starts from its previous λ, as in
 //! production where consecutive frames are close; the `_cold` variant resets it every step; the
 //! `_drifting` variant steps two frames a control period apart in turn, so that every warm start
-//! (λ, the sensitivities) comes from the other frame.
+//! (λ, the sensitivities) comes from the other frame; the `_avx2` and `_baseline` variants run the
+//! narrower copies of the loops ([`needle_core::simd`]) on a machine that has wider ones.
 
 use criterion::{Criterion, criterion_group, criterion_main};
+use needle_core::simd::{self, SimdLevel};
 use std::hint::black_box;
 
 mod common;
@@ -32,6 +34,17 @@ fn bench(c: &mut Criterion) {
             b.iter(|| ctrl.step(black_box(&f), &mut cmd))
         });
         ctrl.params.active_set = true;
+        // The narrower copies of the loops, as a machine without AVX-512 (or AVX2) runs the
+        // step: `inverse_step_m{m}_avx2`, `_baseline` (only where the machine has a wider copy).
+        for level in [SimdLevel::Avx2, SimdLevel::Baseline] {
+            if level < simd::detected() {
+                simd::set_limit(level);
+                c.bench_function(&format!("inverse_step_m{m}_{}", level.name()), |b| {
+                    b.iter(|| ctrl.step(black_box(&f), &mut cmd))
+                });
+                simd::set_limit(SimdLevel::Avx512);
+            }
+        }
         // Two frames a control period apart, in turn: every warm start one frame old.
         let pair = drifting_frames(m, 11);
         let mut ctrl = controller();

@@ -20,6 +20,7 @@ pub mod payload;
 pub mod qp;
 pub mod reduce;
 pub mod serial_chain;
+pub mod simd;
 pub mod synthetic;
 pub mod zeroed;
 

@@ -206,17 +206,20 @@ pub(crate) mod simd {
     use core::sync::atomic::{AtomicU8, Ordering};
 
     static LEVEL: AtomicU8 = AtomicU8::new(0);
+    /// The highest level the loops may use ([`crate::simd::set_limit`]); the detected one when
+    /// higher is not taken.
+    static LIMIT: AtomicU8 = AtomicU8::new(AVX512);
 
     /// No AVX2.
-    const BASELINE: u8 = 1;
+    pub(crate) const BASELINE: u8 = 1;
     /// AVX2 (YMM state enabled).
-    const AVX2: u8 = 2;
+    pub(crate) const AVX2: u8 = 2;
     /// AVX2 and AVX-512F (ZMM and mask state enabled too).
-    const AVX512: u8 = 3;
+    pub(crate) const AVX512: u8 = 3;
 
     /// The detected level (cached).
     #[inline]
-    fn level() -> u8 {
+    pub(crate) fn detected() -> u8 {
         match LEVEL.load(Ordering::Relaxed) {
             0 => {
                 let v = detect();
@@ -227,13 +230,24 @@ pub(crate) mod simd {
         }
     }
 
-    /// Whether the CPU and the OS support AVX2 (YMM state enabled).
+    /// The level the loops use: the detected one, at most the limit.
     #[inline]
-    pub(crate) fn has_avx2() -> bool {
-        cfg!(target_feature = "avx2") || level() >= AVX2
+    pub(crate) fn level() -> u8 {
+        detected().min(LIMIT.load(Ordering::Relaxed))
     }
 
-    /// Whether the CPU and the OS support AVX-512F besides AVX2.
+    /// Sets the limit (`BASELINE..=AVX512`).
+    pub(crate) fn set_limit(limit: u8) {
+        LIMIT.store(limit.clamp(BASELINE, AVX512), Ordering::Relaxed);
+    }
+
+    /// Whether the CPU and the OS support AVX2 (YMM state enabled) and the limit allows it.
+    #[inline]
+    pub(crate) fn has_avx2() -> bool {
+        level() >= AVX2
+    }
+
+    /// Whether the CPU and the OS support AVX-512F besides AVX2 and the limit allows it.
     #[inline]
     pub(crate) fn has_avx512() -> bool {
         level() >= AVX512
