@@ -152,6 +152,14 @@ pub struct InverseParams {
     /// (`docs/benchmark.md`). Every candidate passes the same confirmation (sufficient decrease,
     /// clearances); a step that the usual candidates confirm is unchanged.
     pub resume_held: bool,
+    /// When the confirming solve rejects a [`StepMethod::Qp`] step planned with the hybrid or
+    /// solved Jacobian, plan once more with the linearised one ([`JacobianMode::Linearized`]:
+    /// the exact one-sided derivative of the constraint solution with the base solve's contact,
+    /// stick and slip statuses frozen, from one factor of its active set) and confirm that
+    /// candidate too, before the first stage's step and its halvings (default false). Where the
+    /// shaft sticks, the finite-difference slope over `joint_step` can promise a motion the
+    /// step does not get; the frozen active set's slope is the one of a small step.
+    pub second_opinion: bool,
 }
 
 // SAFETY: `#[repr(u8)]` and the variant `Solve` has the discriminant 0.
@@ -184,6 +192,7 @@ crate::zeroed::impl_zeroable!(InverseParams {
     aim_ahead,
     replan_rejected,
     resume_held,
+    second_opinion,
 });
 
 impl Default for InverseParams {
@@ -220,6 +229,7 @@ impl Default for InverseParams {
             aim_ahead: 10.0,
             replan_rejected: false,
             resume_held: false,
+            second_opinion: false,
         }
     }
 }

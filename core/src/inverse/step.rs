@@ -208,16 +208,7 @@ impl<const M: usize, const N: usize> Controller<M, N> {
         report: &mut SolverReport<N>,
     ) -> (Jacobian<N>, Clearances<N>) {
         let p = self.params;
-        let mut clear = Clearances {
-            count: frame.clearances(),
-            value: [0.0; NCLEAR],
-            gradient: [[0.0; N]; NCLEAR],
-            phi1: SMatrix::zeros(),
-            phi2: SMatrix::zeros(),
-        };
-        for k in 0..clear.count {
-            clear.value[k] = frame.clearance(k, &self.lambda.base);
-        }
+        let mut clear = self.clearances_at_base(frame);
         let linearize = match p.jacobian {
             super::JacobianMode::Solve => false,
             super::JacobianMode::Linearized => true,
@@ -260,19 +251,7 @@ impl<const M: usize, const N: usize> Controller<M, N> {
                 count_solve(report, &r);
                 bi
             };
-            let ti = evaluate_objective(frame, &self.lambda.work, &bi, &p);
-            for r in 0..3 {
-                jac[(r, i)] = (ti.t[r] - obj0.t[r]) / p.joint_step;
-            }
-            jac[(3, i)] = obj0.angle_derivative(&ti, p.joint_step, p.angle_weight);
-            for r in 0..3 {
-                clear.phi1[(r, i)] = (ti.phi1[r] - obj0.phi1[r]) / p.joint_step;
-                clear.phi2[(r, i)] = (ti.phi2[r] - obj0.phi2[r]) / p.joint_step;
-            }
-            for k in 0..clear.count {
-                clear.gradient[k][i] =
-                    (frame.clearance(k, &self.lambda.work) - clear.value[k]) / p.joint_step;
-            }
+            self.record_column(frame, obj0, &bi, i, (&mut jac, &mut clear));
             let m = frame.rows();
             self.sens
                 .record(i, &self.lambda.work, &self.lambda.base, m, p.joint_step);
@@ -281,6 +260,70 @@ impl<const M: usize, const N: usize> Controller<M, N> {
             self.sens.complete(frame.rows());
         }
         (jac, clear)
+    }
+
+    /// The frame's clearances at `λ_q`, their derivatives not yet taken.
+    fn clearances_at_base(&self, frame: &ComplianceFrame<M, N>) -> Clearances<N> {
+        let mut clear = Clearances {
+            count: frame.clearances(),
+            value: [0.0; NCLEAR],
+            gradient: [[0.0; N]; NCLEAR],
+            phi1: SMatrix::zeros(),
+            phi2: SMatrix::zeros(),
+        };
+        for k in 0..clear.count {
+            clear.value[k] = frame.clearance(k, &self.lambda.base);
+        }
+        clear
+    }
+
+    /// Column `i` of `J` and of the clearances' and angles' derivatives, from the solution at
+    /// `q + δq e_i` in `lambda.work` with the needle base at `bi`.
+    fn record_column(
+        &self,
+        frame: &ComplianceFrame<M, N>,
+        obj0: &Objective,
+        bi: &crate::kinematics::Pose,
+        i: usize,
+        (jac, clear): (&mut Jacobian<N>, &mut Clearances<N>),
+    ) {
+        let p = &self.params;
+        let ti = evaluate_objective(frame, &self.lambda.work, bi, p);
+        for r in 0..3 {
+            jac[(r, i)] = (ti.t[r] - obj0.t[r]) / p.joint_step;
+        }
+        jac[(3, i)] = obj0.angle_derivative(&ti, p.joint_step, p.angle_weight);
+        for r in 0..3 {
+            clear.phi1[(r, i)] = (ti.phi1[r] - obj0.phi1[r]) / p.joint_step;
+            clear.phi2[(r, i)] = (ti.phi2[r] - obj0.phi2[r]) / p.joint_step;
+        }
+        for k in 0..clear.count {
+            clear.gradient[k][i] =
+                (frame.clearance(k, &self.lambda.work) - clear.value[k]) / p.joint_step;
+        }
+    }
+
+    /// The linearised model of [`super::InverseParams::second_opinion`]: `J` and the
+    /// clearances' and angles' derivatives of the frozen active set of the base solve (each
+    /// column a prediction, no solve); `None` when that active set cannot be factored. Records
+    /// no sensitivity.
+    fn linearized_model(
+        &mut self,
+        frame: &ComplianceFrame<M, N>,
+        obj0: &Objective,
+    ) -> Option<(Jacobian<N>, Clearances<N>)> {
+        if !self.factor_linearized(frame) {
+            return None;
+        }
+        let mut clear = self.clearances_at_base(frame);
+        let mut jac = Jacobian::<N>::zeros();
+        for i in 0..N {
+            let mut qi = frame.q;
+            qi[i] += self.params.joint_step;
+            let bi = self.predict_at(frame, &qi);
+            self.record_column(frame, obj0, &bi, i, (&mut jac, &mut clear));
+        }
+        Some((jac, clear))
     }
 
     /// Stage 4: with [`super::StepMethod::Paper`], the damped least-squares step
@@ -479,12 +522,32 @@ impl<const M: usize, const N: usize> Controller<M, N> {
         } else {
             0
         };
+        let mut second =
+            self.params.second_opinion && self.params.jacobian != super::JacobianMode::Linearized;
         let mut fallback = 0;
         while fallback <= MAX_BACKTRACKS + 1 {
             if let Some(kept) = self.confirm(frame, (&jac, &clear, obj0), &dq, report) {
                 return kept;
             }
             report.flags |= StatusFlags::BACKTRACKED;
+            if second {
+                // Once, after the first plan: the same program on the frozen active set's model,
+                // its candidate confirmed against that model's promise.
+                second = false;
+                if let Some((jl, cl)) = self.linearized_model(frame, obj0) {
+                    let mut scratch = SolverReport::default();
+                    let (q2, _) = self.qp_step(frame, &jl, &cl, obj0, &mut scratch);
+                    if scratch.flags & StatusFlags::QP_FAILED == 0 {
+                        let mut d2 = SVector::<f64, N>::zeros();
+                        for i in 0..N {
+                            d2[i] = q2[i] - frame.q[i];
+                        }
+                        if let Some(kept) = self.confirm(frame, (&jl, &cl, obj0), &d2, report) {
+                            return kept;
+                        }
+                    }
+                }
+            }
             if replans > 0 {
                 replans -= 1;
                 let after = report.objective_after;

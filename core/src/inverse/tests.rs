@@ -443,6 +443,47 @@ fn replanned_steps_are_confirmed_too() {
     assert!(differ > 0, "no frame exercised the re-plan");
 }
 
+/// With `InverseParams::second_opinion` a step whose plan its solve rejected also tries the plan
+/// of the frozen active set's (linearised) model, confirmed like every candidate: on the random
+/// inserted frames of `qp_step_never_leaves_the_tip_farther_than_it_found_it`, the tip never
+/// ends farther than it started, some steps differ from the default's (the option does
+/// something) and no step differs without a rejected first plan (it changes nothing else).
+#[test]
+fn second_opinion_steps_are_confirmed_and_only_follow_a_rejected_plan() {
+    use crate::payload::StatusFlags;
+    let chain = DhChain::rv1a();
+    let q = [0.1, 0.3, 2.0, 0.0, 0.5, 0.0];
+    let mut frame = ComplianceFrame::<48>::new_boxed();
+    let mut cmd = Command::<48>::new_boxed();
+    let second = InverseParams {
+        second_opinion: true,
+        ..InverseParams::default()
+    };
+    assert!(!InverseParams::default().second_opinion, "off by default");
+    let (mut differ, mut rejected) = (0, 0);
+    for seed in 0..300 {
+        crate::synthetic::random_frame(&mut frame, &chain, &q, 30, seed, true);
+        frame.dt = 1.0;
+        let mut ctrl = Controller::<48>::new_boxed(chain, second);
+        let rep = ctrl.step(&frame, &mut cmd).expect("valid frame");
+        assert_tip_not_farther(&rep, seed);
+        let mut plain = Controller::<48>::new_boxed(chain, InverseParams::default());
+        let rep0 = plain.step(&frame, &mut cmd).expect("valid frame");
+        if rep0.flags & StatusFlags::BACKTRACKED != 0 {
+            rejected += 1;
+        }
+        if rep0.delta_q != rep.delta_q {
+            differ += 1;
+            assert!(
+                rep0.flags & StatusFlags::BACKTRACKED != 0,
+                "seed {seed}: a step whose first plan was kept changed"
+            );
+        }
+    }
+    std::println!("{differ} of 300 steps differ, {rejected} had their first plan rejected");
+    assert!(differ > 0, "no frame exercised the second opinion");
+}
+
 /// `InverseParams::resume_held`: a step that held the joints (its confirming solves rejected the
 /// plan, `Δq₁` and its halvings) and the next frame at the same joints. Without the rule the
 /// second step repeats the first one's decision exactly (the same candidates, the same solves,

@@ -213,6 +213,7 @@ impl Scene {
             qp_heading: v.qp_heading,
             aim_ahead: v.aim_ahead,
             replan_rejected: v.replan_rejected,
+            second_opinion: v.second_opinion,
             resume_held: v.resume_held,
             limit_avoidance: v.limit_avoidance,
             jacobian: match v.jacobian {

@@ -101,6 +101,10 @@ pub(super) fn default_aim_ahead() -> f64 {
 pub(super) fn default_replan_rejected() -> bool {
     InverseParams::default().replan_rejected
 }
+
+pub(super) fn default_second_opinion() -> bool {
+    InverseParams::default().second_opinion
+}
 pub(super) fn default_resume_held() -> bool {
     InverseParams::default().resume_held
 }

@@ -426,6 +426,11 @@ pub struct InverseSpec {
     /// from where that step stopped instead of repeating its candidates (default true).
     #[serde(default = "default_resume_held")]
     pub resume_held: bool,
+    /// A `"qp"` step that its confirming solve rejected is planned once more with the
+    /// linearised Jacobian (the frozen active set of the base solve) and that candidate
+    /// confirmed too, before the first stage's step and its halvings.
+    #[serde(default = "default_second_opinion")]
+    pub second_opinion: bool,
     /// Gain of the `"qp"` update's third stage for arms of more than 6 joints: each joint is
     /// moved towards the middle of its range in the null space of the task (0: off; no effect
     /// on 6-joint arms) [-].
@@ -471,6 +476,7 @@ impl Default for InverseSpec {
             qp_heading: default_qp_heading(),
             aim_ahead: default_aim_ahead(),
             replan_rejected: default_replan_rejected(),
+            second_opinion: default_second_opinion(),
             resume_held: default_resume_held(),
             limit_avoidance: default_limit_avoidance(),
         }
