@@ -412,33 +412,41 @@ fn secant_update_matches_the_rejected_step_and_keeps_the_other_directions() {
     assert_eq!(j2, jac0);
 }
 
+/// One step of `params` and one of the default on each of 300 random inserted frames (those of
+/// `qp_step_never_leaves_the_tip_farther_than_it_found_it`): asserts that the tip never ends
+/// farther than it started under `params`, and returns, per frame, the two reports.
+fn against_the_default(
+    params: InverseParams,
+) -> std::vec::Vec<(crate::payload::SolverReport, crate::payload::SolverReport)> {
+    let chain = DhChain::rv1a();
+    let q = [0.1, 0.3, 2.0, 0.0, 0.5, 0.0];
+    let mut frame = ComplianceFrame::<48>::new_boxed();
+    let mut cmd = Command::<48>::new_boxed();
+    (0..300)
+        .map(|seed| {
+            crate::synthetic::random_frame(&mut frame, &chain, &q, 30, seed, true);
+            frame.dt = 1.0;
+            let mut ctrl = Controller::<48>::new_boxed(chain, params);
+            let rep = ctrl.step(&frame, &mut cmd).expect("valid frame");
+            assert_tip_not_farther(&rep, seed);
+            let mut plain = Controller::<48>::new_boxed(chain, InverseParams::default());
+            let rep0 = plain.step(&frame, &mut cmd).expect("valid frame");
+            (rep0, rep)
+        })
+        .collect()
+}
+
 /// With `InverseParams::replan_rejected` the candidates a step tries include the re-planned
 /// ones, and each is still confirmed by its solve: on the random inserted frames of
 /// `qp_step_never_leaves_the_tip_farther_than_it_found_it`, the tip never ends farther than it
 /// started, and some steps differ from the default's (the option does something).
 #[test]
 fn replanned_steps_are_confirmed_too() {
-    let chain = DhChain::rv1a();
-    let q = [0.1, 0.3, 2.0, 0.0, 0.5, 0.0];
-    let mut frame = ComplianceFrame::<48>::new_boxed();
-    let mut cmd = Command::<48>::new_boxed();
-    let replan = InverseParams {
+    let runs = against_the_default(InverseParams {
         replan_rejected: true,
         ..InverseParams::default()
-    };
-    let mut differ = 0;
-    for seed in 0..300 {
-        crate::synthetic::random_frame(&mut frame, &chain, &q, 30, seed, true);
-        frame.dt = 1.0;
-        let mut ctrl = Controller::<48>::new_boxed(chain, replan);
-        let rep = ctrl.step(&frame, &mut cmd).expect("valid frame");
-        assert_tip_not_farther(&rep, seed);
-        let mut plain = Controller::<48>::new_boxed(chain, InverseParams::default());
-        let rep0 = plain.step(&frame, &mut cmd).expect("valid frame");
-        if rep0.delta_q != rep.delta_q {
-            differ += 1;
-        }
-    }
+    });
+    let differ = runs.iter().filter(|(a, b)| a.delta_q != b.delta_q).count();
     std::println!("{differ} of 300 steps re-planned differently");
     assert!(differ > 0, "no frame exercised the re-plan");
 }
@@ -451,36 +459,24 @@ fn replanned_steps_are_confirmed_too() {
 #[test]
 fn second_opinion_steps_are_confirmed_and_only_follow_a_rejected_plan() {
     use crate::payload::StatusFlags;
-    let chain = DhChain::rv1a();
-    let q = [0.1, 0.3, 2.0, 0.0, 0.5, 0.0];
-    let mut frame = ComplianceFrame::<48>::new_boxed();
-    let mut cmd = Command::<48>::new_boxed();
-    let second = InverseParams {
+    assert!(!InverseParams::default().second_opinion, "off by default");
+    let runs = against_the_default(InverseParams {
         second_opinion: true,
         ..InverseParams::default()
-    };
-    assert!(!InverseParams::default().second_opinion, "off by default");
-    let (mut differ, mut rejected) = (0, 0);
-    for seed in 0..300 {
-        crate::synthetic::random_frame(&mut frame, &chain, &q, 30, seed, true);
-        frame.dt = 1.0;
-        let mut ctrl = Controller::<48>::new_boxed(chain, second);
-        let rep = ctrl.step(&frame, &mut cmd).expect("valid frame");
-        assert_tip_not_farther(&rep, seed);
-        let mut plain = Controller::<48>::new_boxed(chain, InverseParams::default());
-        let rep0 = plain.step(&frame, &mut cmd).expect("valid frame");
-        if rep0.flags & StatusFlags::BACKTRACKED != 0 {
-            rejected += 1;
-        }
+    });
+    let rejected = |r: &crate::payload::SolverReport| r.flags & StatusFlags::BACKTRACKED != 0;
+    let mut differ = 0;
+    for (seed, (rep0, rep)) in runs.iter().enumerate() {
         if rep0.delta_q != rep.delta_q {
             differ += 1;
             assert!(
-                rep0.flags & StatusFlags::BACKTRACKED != 0,
+                rejected(rep0),
                 "seed {seed}: a step whose first plan was kept changed"
             );
         }
     }
-    std::println!("{differ} of 300 steps differ, {rejected} had their first plan rejected");
+    let n = runs.iter().filter(|(a, _)| rejected(a)).count();
+    std::println!("{differ} of 300 steps differ, {n} had their first plan rejected");
     assert!(differ > 0, "no frame exercised the second opinion");
 }
 
