@@ -146,11 +146,12 @@ pub struct InverseParams {
     /// the first stage's step `Δq₁` and its [`super::MAX_BACKTRACKS`] halvings) and the next
     /// frame comes at the same joints, that step tries the same candidates and then goes on
     /// halving `Δq₁` from where the held one stopped, up to [`super::MAX_HELD_HALVINGS`] times
-    /// (default true). A frame at held joints is the one the hold was decided on (the gel at
-    /// rest, the target a step further), so the same candidates are rejected again: on
-    /// `helix_half` for 96 steps in a row, while 1/16 of `Δq₁` would have passed
-    /// (`docs/benchmark.md`). Every candidate passes the same confirmation (sufficient decrease,
-    /// clearances); a step that the usual candidates confirm is unchanged.
+    /// (default false: pushed on where every candidate was rejected, the needle spent the
+    /// obstacle margin on a held-out scene, `docs/benchmark.md`). A frame at held joints is the
+    /// one the hold was decided on (the gel at rest, the target a step further), so the same
+    /// candidates are rejected again: on `helix_half` for 96 steps in a row, while 1/16 of `Δq₁`
+    /// would have passed (`docs/benchmark.md`). Every candidate passes the same confirmation
+    /// (sufficient decrease, clearances); a step that the usual candidates confirm is unchanged.
     pub resume_held: bool,
     /// When the confirming solve rejects a [`StepMethod::Qp`] step planned with the hybrid or
     /// solved Jacobian, plan once more with the linearised one ([`JacobianMode::Linearized`]:
@@ -160,6 +161,14 @@ pub struct InverseParams {
     /// shaft sticks, the finite-difference slope over `joint_step` can promise a motion the
     /// step does not get; the frozen active set's slope is the one of a small step.
     pub second_opinion: bool,
+    /// Damp the second stage of the [`StepMethod::Qp`] update (the angles) by `damping` alone,
+    /// not by the first stage's `ε`, which rises towards `damping_max` while `J` is near
+    /// singular (default false). Once the needle is in the gel, `J`'s smallest singular value
+    /// is below `singular_threshold` at nearly every step of every suite scene (the gel holds
+    /// the shaft sideways), so the raised damping, meant for the tip's weak directions, also
+    /// damps the heading that steers the tip. The trust region, speed and joint limits and the
+    /// clearance rows bound the second stage's step either way.
+    pub qp_angle_base_damping: bool,
 }
 
 // SAFETY: `#[repr(u8)]` and the variant `Solve` has the discriminant 0.
@@ -193,6 +202,7 @@ crate::zeroed::impl_zeroable!(InverseParams {
     replan_rejected,
     resume_held,
     second_opinion,
+    qp_angle_base_damping,
 });
 
 impl Default for InverseParams {
@@ -230,6 +240,7 @@ impl Default for InverseParams {
             replan_rejected: false,
             resume_held: false,
             second_opinion: false,
+            qp_angle_base_damping: false,
         }
     }
 }

@@ -451,6 +451,23 @@ fn replanned_steps_are_confirmed_too() {
     assert!(differ > 0, "no frame exercised the re-plan");
 }
 
+/// [`against_the_default`] for `params`, asserting that a step differs from the default's only
+/// where the default's report has `flag` (the option changes nothing else) and that some do
+/// (the option does something). Returns the steps that differ and the steps with `flag`.
+fn differs_only_where(params: InverseParams, flag: u32, what: &str) -> (usize, usize) {
+    let runs = against_the_default(params);
+    let mut differ = 0;
+    for (seed, (rep0, rep)) in runs.iter().enumerate() {
+        if rep0.delta_q != rep.delta_q {
+            differ += 1;
+            assert!(rep0.flags & flag != 0, "seed {seed}: a step {what} changed");
+        }
+    }
+    let flagged = runs.iter().filter(|(a, _)| a.flags & flag != 0).count();
+    assert!(differ > 0, "no frame exercised the option");
+    (differ, flagged)
+}
+
 /// With `InverseParams::second_opinion` a step whose plan its solve rejected also tries the plan
 /// of the frozen active set's (linearised) model, confirmed like every candidate: on the random
 /// inserted frames of `qp_step_never_leaves_the_tip_farther_than_it_found_it`, the tip never
@@ -460,24 +477,37 @@ fn replanned_steps_are_confirmed_too() {
 fn second_opinion_steps_are_confirmed_and_only_follow_a_rejected_plan() {
     use crate::payload::StatusFlags;
     assert!(!InverseParams::default().second_opinion, "off by default");
-    let runs = against_the_default(InverseParams {
+    let params = InverseParams {
         second_opinion: true,
         ..InverseParams::default()
-    });
-    let rejected = |r: &crate::payload::SolverReport| r.flags & StatusFlags::BACKTRACKED != 0;
-    let mut differ = 0;
-    for (seed, (rep0, rep)) in runs.iter().enumerate() {
-        if rep0.delta_q != rep.delta_q {
-            differ += 1;
-            assert!(
-                rejected(rep0),
-                "seed {seed}: a step whose first plan was kept changed"
-            );
-        }
-    }
-    let n = runs.iter().filter(|(a, _)| rejected(a)).count();
+    };
+    let (differ, n) = differs_only_where(
+        params,
+        StatusFlags::BACKTRACKED,
+        "whose first plan was kept",
+    );
     std::println!("{differ} of 300 steps differ, {n} had their first plan rejected");
-    assert!(differ > 0, "no frame exercised the second opinion");
+}
+
+/// With `InverseParams::qp_angle_base_damping` only the second stage's damping changes, and only
+/// where the first stage's was raised: on the random inserted frames of
+/// `qp_step_never_leaves_the_tip_farther_than_it_found_it`, the tip never ends farther than it
+/// started, every step without `NEAR_SINGULAR` is the default's bit for bit, and some steps with
+/// it differ (the option does something).
+#[test]
+fn angle_base_damping_changes_only_the_steps_whose_damping_was_raised() {
+    use crate::payload::StatusFlags;
+    assert!(
+        !InverseParams::default().qp_angle_base_damping,
+        "off by default"
+    );
+    let params = InverseParams {
+        qp_angle_base_damping: true,
+        ..InverseParams::default()
+    };
+    let (differ, n) =
+        differs_only_where(params, StatusFlags::NEAR_SINGULAR, "without raised damping");
+    std::println!("{differ} of 300 steps differ, {n} had their damping raised");
 }
 
 /// `InverseParams::resume_held`: a step that held the joints (its confirming solves rejected the

@@ -214,6 +214,7 @@ impl Scene {
             aim_ahead: v.aim_ahead,
             replan_rejected: v.replan_rejected,
             second_opinion: v.second_opinion,
+            qp_angle_base_damping: v.qp_angle_base_damping,
             resume_held: v.resume_held,
             limit_avoidance: v.limit_avoidance,
             jacobian: match v.jacobian {

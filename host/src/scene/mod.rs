@@ -423,7 +423,7 @@ pub struct InverseSpec {
     #[serde(default = "default_replan_rejected")]
     pub replan_rejected: bool,
     /// A `"qp"` step at the joints the last step held goes on halving the first stage's step
-    /// from where that step stopped instead of repeating its candidates (default true).
+    /// from where that step stopped instead of repeating its candidates (default false).
     #[serde(default = "default_resume_held")]
     pub resume_held: bool,
     /// A `"qp"` step that its confirming solve rejected is planned once more with the
@@ -431,6 +431,10 @@ pub struct InverseSpec {
     /// confirmed too, before the first stage's step and its halvings.
     #[serde(default = "default_second_opinion")]
     pub second_opinion: bool,
+    /// The `"qp"` update's second stage (the angles) damped by `damping` alone, not by the
+    /// first stage's damping raised near a singularity of the Jacobian.
+    #[serde(default = "default_qp_angle_base_damping")]
+    pub qp_angle_base_damping: bool,
     /// Gain of the `"qp"` update's third stage for arms of more than 6 joints: each joint is
     /// moved towards the middle of its range in the null space of the task (0: off; no effect
     /// on 6-joint arms) [-].
@@ -477,6 +481,7 @@ impl Default for InverseSpec {
             aim_ahead: default_aim_ahead(),
             replan_rejected: default_replan_rejected(),
             second_opinion: default_second_opinion(),
+            qp_angle_base_damping: default_qp_angle_base_damping(),
             resume_held: default_resume_held(),
             limit_avoidance: default_limit_avoidance(),
         }

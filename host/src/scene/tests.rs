@@ -438,10 +438,12 @@ fn the_update_method_clearance_margin_and_qp_angle_weight_reach_the_core_and_are
     assert!(!s.inverse_params().replan_rejected, "the default");
     assert!(!s.inverse_params().resume_held, "the default");
     assert!(!s.inverse_params().second_opinion, "the default");
+    assert!(!s.inverse_params().qp_angle_base_damping, "the default");
     let o = s
         .with_overrides(&[
             ("inverse.replan_rejected".into(), "true".into()),
             ("inverse.second_opinion".into(), "true".into()),
+            ("inverse.qp_angle_base_damping".into(), "true".into()),
             ("inverse.resume_held".into(), "true".into()),
             ("inverse.method".into(), "\"paper\"".into()),
             ("inverse.clearance_margin".into(), "0.5".into()),
@@ -452,6 +454,7 @@ fn the_update_method_clearance_margin_and_qp_angle_weight_reach_the_core_and_are
     assert!(!o.inverse_params().qp_heading);
     assert!(o.inverse_params().replan_rejected);
     assert!(o.inverse_params().second_opinion);
+    assert!(o.inverse_params().qp_angle_base_damping);
     assert!(o.inverse_params().resume_held);
     assert_eq!(o.inverse_params().method, StepMethod::Paper);
     assert_eq!(o.inverse_params().clearance_margin, 0.5);
