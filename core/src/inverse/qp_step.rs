@@ -19,8 +19,8 @@
 //! the paper's blend, `h` = 1 ([`super::InverseParams::qp_heading`], the default) or `k` (the
 //! paper's blend), `w` [`super::InverseParams::qp_angle_weight`]; `J_e`, `Φ1`, `Φ2` and
 //! `G_k = ∂d_k/∂q` from the same finite-difference columns as the paper's `J`; `ε` as in the
-//! paper's update (raised near a singularity; in stage 2's `ε² |y|²` the unraised `damping`
-//! with [`super::InverseParams::qp_angle_base_damping`]). `P` projects on the (damped) null space of `J_e`,
+//! paper's update (raised near a singularity; in stage 2's `ε² |y|²` by at most
+//! [`super::InverseParams::qp_angle_damping_max`]). `P` projects on the (damped) null space of `J_e`,
 //! so stage 2 leaves the tip's predicted position where stage 1 put it; `y = 0` is stage 1's
 //! step, so stage 2 is feasible whenever stage 1 is.
 //!
@@ -325,10 +325,11 @@ impl<const M: usize, const N: usize> Controller<M, N> {
                 }
             }
         }
-        // The angles' stage damped by `damping` alone with `qp_angle_base_damping` (the field's
-        // docs); the tip's and the limits' stages by the step's `ε`.
-        let eps2 = if p.qp_angle_base_damping && stage.goal == Goal::Angles {
-            p.damping * p.damping
+        // The angles' stage damped by at most `qp_angle_damping_max` (the field's docs); the
+        // tip's and the limits' stages by the step's `ε`.
+        let eps2 = if stage.goal == Goal::Angles {
+            let cap = p.qp_angle_damping_max;
+            eps2.min((cap * cap).max(p.damping * p.damping))
         } else {
             eps2
         };

@@ -489,24 +489,27 @@ fn second_opinion_steps_are_confirmed_and_only_follow_a_rejected_plan() {
     std::println!("{differ} of 300 steps differ, {n} had their first plan rejected");
 }
 
-/// With `InverseParams::qp_angle_base_damping` only the second stage's damping changes, and only
+/// `InverseParams::qp_angle_damping_max` changes only the second stage's damping, and only
 /// where the first stage's was raised: on the random inserted frames of
-/// `qp_step_never_leaves_the_tip_farther_than_it_found_it`, the tip never ends farther than it
-/// started, every step without `NEAR_SINGULAR` is the default's bit for bit, and some steps with
-/// it differ (the option does something).
+/// `qp_step_never_leaves_the_tip_farther_than_it_found_it`, the update with the second stage
+/// damped as the first (the cap at `damping + damping_max`, above any raised `ε`: the update
+/// before the cap)
+/// never leaves the tip farther than it started, every step without `NEAR_SINGULAR` is the
+/// default's bit for bit, and some steps with it differ (the cap does something).
 #[test]
-fn angle_base_damping_changes_only_the_steps_whose_damping_was_raised() {
+fn angle_damping_cap_changes_only_the_steps_whose_damping_was_raised() {
     use crate::payload::StatusFlags;
-    assert!(
-        !InverseParams::default().qp_angle_base_damping,
-        "off by default"
-    );
-    let params = InverseParams {
-        qp_angle_base_damping: true,
-        ..InverseParams::default()
+    let d = InverseParams::default();
+    assert_eq!(d.qp_angle_damping_max, 5.0, "the default");
+    let uncapped = InverseParams {
+        qp_angle_damping_max: d.damping + d.damping_max,
+        ..d
     };
-    let (differ, n) =
-        differs_only_where(params, StatusFlags::NEAR_SINGULAR, "without raised damping");
+    let (differ, n) = differs_only_where(
+        uncapped,
+        StatusFlags::NEAR_SINGULAR,
+        "without raised damping",
+    );
     std::println!("{differ} of 300 steps differ, {n} had their damping raised");
 }
 

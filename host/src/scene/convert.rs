@@ -214,7 +214,7 @@ impl Scene {
             aim_ahead: v.aim_ahead,
             replan_rejected: v.replan_rejected,
             second_opinion: v.second_opinion,
-            qp_angle_base_damping: v.qp_angle_base_damping,
+            qp_angle_damping_max: v.qp_angle_damping_max,
             resume_held: v.resume_held,
             limit_avoidance: v.limit_avoidance,
             jacobian: match v.jacobian {

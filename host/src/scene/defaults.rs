@@ -106,8 +106,8 @@ pub(super) fn default_second_opinion() -> bool {
     InverseParams::default().second_opinion
 }
 
-pub(super) fn default_qp_angle_base_damping() -> bool {
-    InverseParams::default().qp_angle_base_damping
+pub(super) fn default_qp_angle_damping_max() -> f64 {
+    InverseParams::default().qp_angle_damping_max
 }
 pub(super) fn default_resume_held() -> bool {
     InverseParams::default().resume_held

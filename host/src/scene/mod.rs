@@ -431,10 +431,11 @@ pub struct InverseSpec {
     /// confirmed too, before the first stage's step and its halvings.
     #[serde(default = "default_second_opinion")]
     pub second_opinion: bool,
-    /// The `"qp"` update's second stage (the angles) damped by `damping` alone, not by the
-    /// first stage's damping raised near a singularity of the Jacobian.
-    #[serde(default = "default_qp_angle_base_damping")]
-    pub qp_angle_base_damping: bool,
+    /// Largest damping of the `"qp"` update's second stage (the angles), which is otherwise
+    /// the first stage's, raised towards `damping_max` near a singularity of the Jacobian
+    /// [mm/rad].
+    #[serde(default = "default_qp_angle_damping_max")]
+    pub qp_angle_damping_max: f64,
     /// Gain of the `"qp"` update's third stage for arms of more than 6 joints: each joint is
     /// moved towards the middle of its range in the null space of the task (0: off; no effect
     /// on 6-joint arms) [-].
@@ -481,7 +482,7 @@ impl Default for InverseSpec {
             aim_ahead: default_aim_ahead(),
             replan_rejected: default_replan_rejected(),
             second_opinion: default_second_opinion(),
-            qp_angle_base_damping: default_qp_angle_base_damping(),
+            qp_angle_damping_max: default_qp_angle_damping_max(),
             resume_held: default_resume_held(),
             limit_avoidance: default_limit_avoidance(),
         }

@@ -438,12 +438,12 @@ fn the_update_method_clearance_margin_and_qp_angle_weight_reach_the_core_and_are
     assert!(!s.inverse_params().replan_rejected, "the default");
     assert!(!s.inverse_params().resume_held, "the default");
     assert!(!s.inverse_params().second_opinion, "the default");
-    assert!(!s.inverse_params().qp_angle_base_damping, "the default");
+    assert_eq!(s.inverse_params().qp_angle_damping_max, 5.0, "the default");
     let o = s
         .with_overrides(&[
             ("inverse.replan_rejected".into(), "true".into()),
             ("inverse.second_opinion".into(), "true".into()),
-            ("inverse.qp_angle_base_damping".into(), "true".into()),
+            ("inverse.qp_angle_damping_max".into(), "21".into()),
             ("inverse.resume_held".into(), "true".into()),
             ("inverse.method".into(), "\"paper\"".into()),
             ("inverse.clearance_margin".into(), "0.5".into()),
@@ -454,7 +454,7 @@ fn the_update_method_clearance_margin_and_qp_angle_weight_reach_the_core_and_are
     assert!(!o.inverse_params().qp_heading);
     assert!(o.inverse_params().replan_rejected);
     assert!(o.inverse_params().second_opinion);
-    assert!(o.inverse_params().qp_angle_base_damping);
+    assert_eq!(o.inverse_params().qp_angle_damping_max, 21.0);
     assert!(o.inverse_params().resume_held);
     assert_eq!(o.inverse_params().method, StepMethod::Paper);
     assert_eq!(o.inverse_params().clearance_margin, 0.5);
@@ -467,6 +467,10 @@ fn the_update_method_clearance_margin_and_qp_angle_weight_reach_the_core_and_are
         .with_overrides(&[("inverse.clearance_margin".into(), "-0.1".into())])
         .unwrap_err();
     assert_eq!(e.field, "inverse.clearance_margin");
+    let e = s
+        .with_overrides(&[("inverse.qp_angle_damping_max".into(), "-5".into())])
+        .unwrap_err();
+    assert_eq!(e.field, "inverse.qp_angle_damping_max");
     let e = s
         .with_overrides(&[("inverse.method".into(), "\"newton\"".into())])
         .unwrap_err();

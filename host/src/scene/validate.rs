@@ -425,6 +425,11 @@ impl Scene {
         positive("inverse.max_base_step", v.max_base_step, "[mm]")?;
         non_negative("inverse.clearance_margin", v.clearance_margin, "[mm]")?;
         non_negative("inverse.qp_angle_weight", v.qp_angle_weight, "[mm/rad]")?;
+        non_negative(
+            "inverse.qp_angle_damping_max",
+            v.qp_angle_damping_max,
+            "[mm/rad]",
+        )?;
         within(
             "inverse.limit_avoidance",
             v.limit_avoidance,
