@@ -128,7 +128,13 @@ fn random_frames_step_to_finite_commands() {
     for seed in 0..20 {
         random_frame(&mut frame, &chain, &Q_TARGET, M, seed, seed % 2 == 0);
         let rep = ctrl.step(&frame, &mut cmd).expect("valid frame");
-        assert_eq!(rep.solves, 8);
+        // Base solve, 6 Jacobian columns, final solve; a plan its final solve rejects tries the
+        // first stage's step and its halvings, 1 + MAX_BACKTRACKS more (flagged BACKTRACKED).
+        let most = 8 + 1 + needle_core::inverse::MAX_BACKTRACKS as u32;
+        assert!(
+            rep.solves == 8 || (rep.flags & StatusFlags::BACKTRACKED != 0 && rep.solves <= most),
+            "seed {seed}: {rep:?}"
+        );
         assert!(cmd.lambda[..frame.m as usize].iter().all(|x| x.is_finite()));
         assert!(cmd.q.iter().all(|x| x.is_finite()));
         assert!(ctrl.robot.within_limits(&cmd.q));

@@ -41,7 +41,8 @@ impl StatusFlags {
 pub struct SolverReport<const N: usize = 6> {
     /// Gauss-Seidel sweeps summed over every solve of the step.
     pub iterations: u32,
-    /// Number of constraint solves in the step (1, or 8 with a Jacobian).
+    /// Number of constraint solves in the step (1 within tolerance; 8 with a Jacobian, more when
+    /// the final solve rejects the plan and shorter steps are confirmed).
     pub solves: u32,
     /// Bit set of [`StatusFlags`].
     pub flags: u32,
