@@ -63,6 +63,9 @@ struct Slide {
 pub struct ActiveSet<const M: usize> {
     n: usize,
     n_tied: usize,
+    /// The LU factor of the last factorisation succeeded.
+    factored: bool,
+    /// ... and the response `Z` to the base rows is computed and finite.
     valid: bool,
     rows: [u32; M],
     perm: [u32; M],
@@ -88,6 +91,7 @@ crate::zeroed::impl_zeroable!(Slide {
 crate::zeroed::impl_zeroable!(ActiveSet<const M> {
     n,
     n_tied,
+    factored,
     valid,
     rows,
     perm,
@@ -112,6 +116,7 @@ impl<const M: usize> ActiveSet<M> {
         Self {
             n: 0,
             n_tied: 0,
+            factored: false,
             valid: false,
             rows: [0; M],
             perm: [0; M],
@@ -146,8 +151,33 @@ impl<const M: usize> ActiveSet<M> {
         self.n_tied
     }
 
-    /// Whether the last factorisation succeeded.
+    /// Whether the last factorisation succeeded and its response `Z` to the base rows is known
+    /// (the active-set methods' rounds factor without it: [`Self::complete_response`]).
     pub fn is_valid(&self) -> bool {
+        self.valid
+    }
+
+    /// Computes the response `Z = K⁻¹ E_base` of the last factorisation when it is not yet
+    /// known (after [`BlockGs::solve_on_active_sets`] or
+    /// [`BlockGs::solve_on_active_sets_feasible`], whose rounds need only the factor);
+    /// returns [`Self::is_valid`].
+    pub fn complete_response(&mut self) -> bool {
+        if self.valid || !self.factored {
+            return self.valid;
+        }
+        let n = self.n;
+        for c in 0..BASE {
+            let x = &mut self.x;
+            x[..n].fill(0.0);
+            x[c] = 1.0;
+            lu_solve(&self.lu, &self.perm, n, x);
+            for k in 0..n {
+                self.response[k][c] = x[k];
+            }
+        }
+        self.valid = self.response[..n]
+            .iter()
+            .all(|z| z.iter().all(|v| v.is_finite()));
         self.valid
     }
 
@@ -260,6 +290,19 @@ impl<const M: usize> BlockGs<M> {
         lambda: &[f64; M],
         set: &mut ActiveSet<M>,
     ) -> bool {
+        self.factor_lu(w, delta, lambda, set) && set.complete_response()
+    }
+
+    /// [`Self::factor_active_set`] without the response `Z` (six triangular solves, as many
+    /// flops as the LU itself at the suite's sizes): what a round of the active-set methods
+    /// needs. `false` when `K` is singular or the base rows are not free.
+    fn factor_lu(
+        &self,
+        w: &[[f64; M]; M],
+        delta: &[f64; M],
+        lambda: &[f64; M],
+        set: &mut ActiveSet<M>,
+    ) -> bool {
         #[cfg(target_arch = "x86_64")]
         if crate::math::use_avx2() {
             // SAFETY: AVX2 support was checked at run time.
@@ -289,6 +332,7 @@ impl<const M: usize> BlockGs<M> {
         set: &mut ActiveSet<M>,
     ) -> bool {
         set.valid = false;
+        set.factored = false;
         self.classify(lambda, set);
         let n = set.n;
         if n < BASE || (0..BASE).any(|i| set.rows[i] as usize != i) {
@@ -356,7 +400,9 @@ impl<const M: usize> BlockGs<M> {
             }
             set.perm[k] = p as u32;
             if p != k {
-                set.lu.swap(p, k);
+                // The first n entries only: a whole row is M, ten times n at the suite's sizes.
+                let (top, bottom) = set.lu.split_at_mut(p);
+                top[k][..n].swap_with_slice(&mut bottom[0][..n]);
             }
             let (top, bottom) = set.lu.split_at_mut(k + 1);
             let pivot_row = &top[k];
@@ -369,26 +415,15 @@ impl<const M: usize> BlockGs<M> {
                 }
             }
         }
-        for c in 0..BASE {
-            let x = &mut set.x;
-            x[..n].fill(0.0);
-            x[c] = 1.0;
-            lu_solve(&set.lu, &set.perm, n, x);
-            for k in 0..n {
-                set.response[k][c] = x[k];
-            }
-        }
-        set.valid = set.response[..n]
-            .iter()
-            .all(|z| z.iter().all(|v| v.is_finite()));
-        set.valid
+        set.factored = true;
+        true
     }
 
     /// One Newton step on the free and tied rows of `set` from `lambda` (held rows fixed):
     /// `u = K⁻¹ (δ_F − (W λ)_F)`, `λ_F += u`, then each tied row is put back exactly on its bound
     /// `±(μ_n |λ_l| + r_0)`. From a Gauss-Seidel iterate with the right statuses this lands on the
     /// solution to round-off (the bound is the only nonlinearity). Returns `false` when the set
-    /// is invalid or the step is not finite (then `lambda` is unchanged).
+    /// is not factored or the step is not finite (then `lambda` is unchanged).
     pub fn refine_on_active_set(
         &self,
         w: &[[f64; M]; M],
@@ -396,7 +431,7 @@ impl<const M: usize> BlockGs<M> {
         lambda: &mut [f64; M],
         set: &mut ActiveSet<M>,
     ) -> bool {
-        if !set.valid || self.newton_step(w, delta, lambda, set).is_none() {
+        if !set.factored || self.newton_step(w, delta, lambda, set).is_none() {
             return false;
         }
         self.apply_step(lambda, set, 1.0);
@@ -449,7 +484,8 @@ impl<const M: usize> BlockGs<M> {
 
     /// Newton's method on the active set with the statuses updated between steps (a
     /// primal-dual active-set method): each round factors the set `lambda` gives
-    /// ([`Self::factor_active_set`]), takes one Newton step on it
+    /// ([`Self::factor_active_set`], without the response `Z`: [`ActiveSet::complete_response`]
+    /// computes it after), takes one Newton step on it
     /// ([`Self::refine_on_active_set`]), then corrects the statuses the step got wrong
     /// ([`Self::correct_statuses`]): a unilateral or normal force pulled below zero is set to
     /// zero, a tangential force pushed out of its friction disk back onto it, a closed
@@ -475,7 +511,7 @@ impl<const M: usize> BlockGs<M> {
         let mut seen = [None; 2];
         let mut previous = (f64::INFINITY, [0.0; M]);
         for round in 0..max_rounds {
-            if !(self.factor_active_set(w, delta, lambda, set)
+            if !(self.factor_lu(w, delta, lambda, set)
                 && self.refine_on_active_set(w, delta, lambda, set))
             {
                 return false;
@@ -545,7 +581,7 @@ impl<const M: usize> BlockGs<M> {
         // `correct_statuses`).
         let tol = 1e-10 * max_abs(&delta[..self.m]);
         for _ in 0..max_rounds {
-            if !self.factor_active_set(w, delta, lambda, set) {
+            if !self.factor_lu(w, delta, lambda, set) {
                 return false;
             }
             let Some(residual) = self.newton_step(w, delta, lambda, set) else {

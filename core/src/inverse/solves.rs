@@ -188,7 +188,7 @@ impl<const M: usize, const N: usize> Controller<M, N> {
             self.gs
                 .factor_active_set(&frame.w, &self.delta, &self.lambda.base, &mut self.set);
         }
-        self.set_valid = self.set.is_valid();
+        self.set_valid = self.set.complete_response();
         SolveReport {
             iterations: r1.iterations + r2.iterations,
             ..r2
