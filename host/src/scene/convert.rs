@@ -225,7 +225,8 @@ impl Scene {
             gs: GsParams {
                 tolerance: self.solver.gs_tolerance,
                 max_iterations: self.solver.gs_max_iterations,
-                ..GsParams::default()
+                relaxation: self.solver.gs_relaxation,
+                ..InverseParams::default().gs
             },
             ..InverseParams::default()
         }

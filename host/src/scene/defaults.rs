@@ -124,6 +124,9 @@ pub(super) fn default_gs_tol() -> f64 {
 pub(super) fn default_gs_iter() -> u32 {
     InverseParams::default().gs.max_iterations
 }
+pub(super) fn default_gs_relaxation() -> f64 {
+    InverseParams::default().gs.relaxation
+}
 pub(super) fn default_h() -> f64 {
     0.04
 }

@@ -504,6 +504,10 @@ pub struct SolverSpec {
     /// Gauss-Seidel iteration cap.
     #[serde(default = "default_gs_iter")]
     pub gs_max_iterations: u32,
+    /// Over-relaxation ω of the Gauss-Seidel updates of bilateral, unilateral and sliding
+    /// rows (projected SOR; 1 = plain Gauss-Seidel; contact groups always use 1) [-].
+    #[serde(default = "default_gs_relaxation")]
+    pub gs_relaxation: f64,
     /// Time step h of the quasi-static implicit step (mass term M/h²) [s].
     #[serde(default = "default_h")]
     pub time_step: f64,
@@ -752,6 +756,7 @@ impl Default for SolverSpec {
         Self {
             gs_tolerance: default_gs_tol(),
             gs_max_iterations: default_gs_iter(),
+            gs_relaxation: default_gs_relaxation(),
             time_step: default_h(),
             refactor_every: None,
             background_factorization: default_background(),

@@ -476,3 +476,29 @@ fn the_update_method_clearance_margin_and_qp_angle_weight_reach_the_core_and_are
         .unwrap_err();
     assert!(e.to_string().contains("inverse.method"), "{e}");
 }
+
+/// `solver.gs_relaxation` defaults to the core's own default (so the host runs the solves the
+/// core's benches time), reaches the core's Gauss-Seidel, and is refused outside [0.1, 1.9]
+/// (the range the sweep clamps to) with its field named.
+#[test]
+fn gs_relaxation_defaults_to_the_cores_and_reaches_its_solves() {
+    let s = Scene::builtin("complex").unwrap();
+    let core = needle_core::InverseParams::default().gs;
+    assert_eq!(s.solver.gs_relaxation, core.relaxation);
+    let expected = needle_core::constraint::GsParams {
+        tolerance: s.solver.gs_tolerance,
+        max_iterations: s.solver.gs_max_iterations,
+        ..core
+    };
+    assert_eq!(s.inverse_params().gs, expected);
+    let o = s
+        .with_overrides(&[("solver.gs_relaxation".into(), "1.2".into())])
+        .expect("in range");
+    assert_eq!(o.inverse_params().gs.relaxation, 1.2);
+    for bad in ["0.05", "1.95", "2", "nan"] {
+        let e = s
+            .with_overrides(&[("solver.gs_relaxation".into(), bad.into())])
+            .unwrap_err();
+        assert_eq!(e.field, "solver.gs_relaxation", "{bad}");
+    }
+}

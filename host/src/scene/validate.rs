@@ -451,6 +451,7 @@ impl Scene {
                 ),
             );
         }
+        within("solver.gs_relaxation", s.gs_relaxation, 0.1, 1.9, "[-]")?;
         within("solver.time_step", s.time_step, 1e-6, 10.0, "[s]")?;
         if s.refactor_every == Some(0) {
             return fail("solver.refactor_every", "must be ≥ 1");
