@@ -1,14 +1,14 @@
 //! The core's inverse step on frames the host produced, where `needle-core`'s own `inverse`
 //! bench steps seeded synthetic frames ([`needle_core::synthetic::random_frame`]): the complex
-//! benchmark insertion is run closed loop (the core in this process) and the 100 frames of
-//! steps 500–599 of its 621 (the tip about 34–44 mm deep in the gel, the bench prints the
-//! depths; most sliding points of the shaft in place) are recorded, not timed. A fresh controller with the scene's tuning then steps them in
-//! order, once to warm up, then again and again in the timed loop: every warm start is the
-//! previous frame's, as in the product (one step in 100, the wrap-around, starts from the
-//! window's last frame).
+//! benchmark insertion is run closed loop (the core in this process) and the 500 frames of
+//! steps 120–619 of its 621 (from just after the puncture at step 114 to the end, the bench
+//! prints the depths) are recorded, not timed. A fresh controller with the scene's tuning then
+//! steps them in order, once to warm up, then again and again in the timed loop: every warm
+//! start is the previous frame's, as in the product (one step in 500, the wrap-around, starts
+//! from the last frame).
 //!
 //! - `core_step_complex_<n>_nodes_m<m>`: the scene's tuning (`solver.gs_relaxation` 1, plain
-//!   Gauss-Seidel), a gel of about `n` nodes, `m` the mean number of rows of the window.
+//!   Gauss-Seidel), a gel of about `n` nodes, `m` the mean number of rows of the recorded frames.
 //! - `…_sor12`: the same frames with over-relaxation ω = 1.2, which takes ~20 % fewer sweeps on
 //!   the synthetic frames and none fewer here.
 //!
@@ -27,9 +27,9 @@ use needle_host::step::{Pipeline, ROWS};
 use std::hint::black_box;
 
 /// First recorded step.
-const FIRST: usize = 500;
+const FIRST: usize = 120;
 /// Recorded steps.
-const WINDOW: usize = 100;
+const WINDOW: usize = 500;
 
 /// The core in this process, copying the frames of steps `FIRST..FIRST + WINDOW`.
 struct Recorder {
@@ -54,7 +54,7 @@ impl Transport<ROWS> for Recorder {
     }
 }
 
-/// The frames of the window of the complex insertion at about `nodes` gel nodes, the robot and
+/// The recorded frames of the complex insertion at about `nodes` gel nodes, the robot and
 /// the core's tuning of that scene.
 fn record(nodes: usize) -> (Vec<Box<ComplianceFrame<ROWS>>>, Robot<6>, InverseParams) {
     let scene = Scene::builtin("complex")
