@@ -188,11 +188,7 @@ impl<const M: usize> BaseElimination<M> {
                 *r = v;
             }
         }
-        for i in 0..n {
-            for j in 0..i {
-                self.w[j][i] = self.w[i][j];
-            }
-        }
+        mirror_lower(&mut self.w, n);
     }
 
     /// `δ' = δ_o − S δ_b` from the frame's other rows and the base violation `delta_b`.
@@ -248,6 +244,32 @@ impl<const M: usize> BaseElimination<M> {
     }
 }
 
+/// Copies the strict lower triangle of the `n × n` block onto the upper one (`w[j][i] =
+/// w[i][j]` for `j < i < n`), by tiles of 8 × 8 so that the column writes of a tile stay in
+/// the few cache lines of its rows instead of touching one line of another row per entry (at
+/// n = 186 the plain column loop was 60 % of the Schur complement's time). The same copies:
+/// the same matrix.
+#[inline(always)]
+fn mirror_lower<const M: usize>(w: &mut [[f64; M]; M], n: usize) {
+    const T: usize = 8;
+    let n = n.min(M);
+    let mut i0 = 0;
+    while i0 < n {
+        let i1 = (i0 + T).min(n);
+        let mut j0 = 0;
+        while j0 < i1 {
+            let j1 = (j0 + T).min(i1);
+            for i in i0..i1 {
+                for j in j0..j1.min(i) {
+                    w[j][i] = w[i][j];
+                }
+            }
+            j0 += T;
+        }
+        i0 += T;
+    }
+}
+
 /// `out_i = δ_o,i − S_i δ_b` for the rows of `s`.
 fn reduce_into<const M: usize, const N: usize>(
     s: &[[f64; 6]],
@@ -267,5 +289,38 @@ fn reduce_into<const M: usize, const N: usize>(
 impl<const M: usize> Default for BaseElimination<M> {
     fn default() -> Self {
         Self::new()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::mirror_lower;
+
+    /// The tiled mirror copies exactly what the plain column loop copies, for sizes on and off
+    /// the tile width, and leaves the diagonal, the lower triangle and rows/columns `n..` alone.
+    #[test]
+    fn tiled_mirror_is_the_plain_column_loop() {
+        const M: usize = 40;
+        for n in [0, 1, 2, 7, 8, 9, 15, 16, 17, 23, 31, 33, 39, 40] {
+            let mut a = [[0.0f64; M]; M];
+            for (i, row) in a.iter_mut().enumerate() {
+                for (j, x) in row.iter_mut().enumerate() {
+                    // Distinct values, a different pattern above the diagonal.
+                    *x = if j <= i {
+                        (i * M + j) as f64 + 0.5
+                    } else {
+                        -((i * M + j) as f64)
+                    };
+                }
+            }
+            let mut b = a;
+            for i in 0..n {
+                for j in 0..i {
+                    b[j][i] = b[i][j];
+                }
+            }
+            mirror_lower(&mut a, n);
+            assert!(a == b, "n = {n}");
+        }
     }
 }
