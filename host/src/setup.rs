@@ -172,7 +172,7 @@ impl<const N: usize> Setup<N> {
         let params = GelParams {
             near_nodes: near,
             entry_nodes: entry,
-            ..gel_params(scene)
+            ..gel_params(scene, mesh.node_count())
         };
         let gel = GelModel::try_new(mesh, &fixed, &params).map_err(|source| SetupError::Model {
             body: Body::Gel,
@@ -292,8 +292,9 @@ pub fn step_params(scene: &Scene) -> StepParams {
     }
 }
 
-/// The gel model's parameters of `scene`.
-pub fn gel_params(scene: &Scene) -> GelParams {
+/// The gel model's parameters of `scene` for a gel of `nodes` nodes (the defaults that depend
+/// on the gel's size, such as `solver.far_refresh_rotation`'s, follow it).
+pub fn gel_params(scene: &Scene, nodes: usize) -> GelParams {
     GelParams {
         elasticity: Elasticity {
             young_modulus: scene.gel.young_modulus,
@@ -325,7 +326,7 @@ pub fn gel_params(scene: &Scene) -> GelParams {
         }),
         refresh: (scene.solver.refresh_rotation > 0.0).then_some(RefreshParams {
             rotation: scene.solver.refresh_rotation,
-            far_rotation: scene.solver.far_refresh_rotation(),
+            far_rotation: scene.solver.far_refresh_rotation(nodes),
             ceiling: scene
                 .solver
                 .refresh_ceiling

@@ -240,7 +240,7 @@ fn a_listed_region_absent_from_the_mesh_is_refused_naming_file_field_and_tags() 
     let ok = scene_on_bilayer(vec![region(2, 0.02)]);
     let mesh = needle_host::setup::gel_mesh(&ok).expect("region 2 is in the mesh");
     assert_eq!(mesh.region_tags(), vec![1, 2]);
-    let p = needle_host::setup::gel_params(&ok);
+    let p = needle_host::setup::gel_params(&ok, 1500);
     assert_eq!(p.regions.len(), 1);
     assert_eq!(p.regions[0].elasticity.poisson_ratio, ok.gel.poisson_ratio);
 }

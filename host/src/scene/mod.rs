@@ -576,9 +576,11 @@ pub struct SolverSpec {
     /// With a near block (`near_radius`): the rotation of an element not all of whose nodes
     /// are near, since the matrix of the factor in use, that sends a matrix to the background
     /// factorisation [rad], at most [`crate::free_motion::LAG_ROTATION_LIMIT`]. Absent (the
-    /// default): `refresh_rotation`. The near elements refresh the block at
-    /// `refresh_rotation`. A larger value factorises the whole gel less often, at some cost in
-    /// accuracy on heavily loaded gels (measured in `docs/architecture.md`).
+    /// default): on gels of [`FAR_REFRESH_AUTO_MIN_NODES`] nodes or more that limit (the far
+    /// elements then send no matrix; one turned by the limit factorises at once), on smaller
+    /// ones `refresh_rotation` ([`SolverSpec::far_refresh_rotation`]). The near elements refresh
+    /// the block at `refresh_rotation`. A larger value factorises the whole gel less often, at
+    /// some cost in accuracy on heavily loaded gels (measured in `docs/architecture.md`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub far_refresh_rotation: Option<f64>,
     /// Where the gel has a near block (`near_radius`; with any solver): how its elements not
@@ -637,6 +639,14 @@ pub const NEAR_AUTO_SPACINGS: f64 = 1.5;
 /// about a fifth at 1485 and 1815 nodes and a tenth at 1000; at 600 nodes it saves nothing
 /// measurable (see `docs/architecture.md`).
 pub const NEAR_AUTO_MIN_NODES: usize = 1000;
+
+/// `solver.far_refresh_rotation` absent: the smallest gel (nodes) whose far elements refresh
+/// the whole factor only at [`crate::free_motion::LAG_ROTATION_LIMIT`]. A full factorisation
+/// takes about 0.85 s at 19 800 nodes (many steps of CPU on the second core, and the step
+/// that adopts it waits); there the complex scene's CPU per step falls by a fifth with the
+/// same errors within 0.004 mm. On the 1500-node suites the same setting lost targets and hit
+/// an obstacle, and saved no CPU (`docs/architecture.md`).
+pub const FAR_REFRESH_AUTO_MIN_NODES: usize = 10_000;
 
 /// The near block's radius, or when to have one (`solver.near_radius`).
 #[derive(Clone, Copy, Debug, PartialEq, Default)]
@@ -734,9 +744,15 @@ pub enum FarElementsSpec {
 }
 
 impl SolverSpec {
-    /// `far_refresh_rotation` as set, or its default `refresh_rotation`.
-    pub fn far_refresh_rotation(&self) -> f64 {
-        self.far_refresh_rotation.unwrap_or(self.refresh_rotation)
+    /// `far_refresh_rotation` as set, or its default for a gel of `nodes` nodes: from
+    /// [`FAR_REFRESH_AUTO_MIN_NODES`] nodes on [`crate::free_motion::LAG_ROTATION_LIMIT`] (or
+    /// `refresh_rotation` if that is larger), below it `refresh_rotation`.
+    pub fn far_refresh_rotation(&self, nodes: usize) -> f64 {
+        self.far_refresh_rotation.unwrap_or(if nodes >= FAR_REFRESH_AUTO_MIN_NODES {
+            crate::free_motion::LAG_ROTATION_LIMIT.max(self.refresh_rotation)
+        } else {
+            self.refresh_rotation
+        })
     }
 
     /// `refactor_every` as set, or its default: with `gel_solve = "direct"`, 2 with the

@@ -283,12 +283,24 @@ fn factorisation_defaults_follow_the_mode() {
         assert_eq!(e.field, "solver.near_radius", "{bad}");
         assert!(e.to_string().contains("positive distance"), "{e}");
     }
-    assert_eq!(s.solver.far_refresh_rotation(), s.solver.refresh_rotation);
+    // Absent: `refresh_rotation` below FAR_REFRESH_AUTO_MIN_NODES nodes, the limit from it.
+    let small = FAR_REFRESH_AUTO_MIN_NODES - 1;
+    assert_eq!(s.solver.far_refresh_rotation(small), s.solver.refresh_rotation);
+    assert_eq!(
+        s.solver.far_refresh_rotation(FAR_REFRESH_AUTO_MIN_NODES),
+        LAG_ROTATION_LIMIT
+    );
     let far = set(&[("solver.far_refresh_rotation", "0.08")]).unwrap();
-    assert_eq!(far.solver.far_refresh_rotation(), 0.08);
+    for nodes in [small, FAR_REFRESH_AUTO_MIN_NODES] {
+        assert_eq!(far.solver.far_refresh_rotation(nodes), 0.08, "as set, at {nodes} nodes");
+    }
     let limit = LAG_ROTATION_LIMIT.to_string();
     let at_limit = set(&[("solver.far_refresh_rotation", limit.as_str())]).unwrap();
-    assert_eq!(at_limit.solver.far_refresh_rotation(), LAG_ROTATION_LIMIT);
+    assert_eq!(at_limit.solver.far_refresh_rotation(small), LAG_ROTATION_LIMIT);
+    // The gel's parameters follow the size.
+    let far_rotation = |nodes| crate::setup::gel_params(&s, nodes).refresh.map(|r| r.far_rotation);
+    assert_eq!(far_rotation(1500), Some(s.solver.refresh_rotation));
+    assert_eq!(far_rotation(19_800), Some(LAG_ROTATION_LIMIT));
     for bad in ["0", "-0.1", "0.3", "nan"] {
         let e = set(&[("solver.far_refresh_rotation", bad)]).unwrap_err();
         assert_eq!(e.field, "solver.far_refresh_rotation", "{bad}");
@@ -324,7 +336,7 @@ fn factorisation_defaults_follow_the_mode() {
     assert_eq!(s.solver.far_residual_tolerance, 1e-3, "the default");
     let exact = set(&[("solver.far_residual_tolerance", "0")]).unwrap();
     assert_eq!(exact.solver.far_residual_tolerance, 0.0);
-    let gel = crate::setup::gel_params(&set(&[("solver.far_residual_tolerance", "0.01")]).unwrap());
+    let gel = crate::setup::gel_params(&set(&[("solver.far_residual_tolerance", "0.01")]).unwrap(), 1500);
     assert_eq!(gel.far_residual_tolerance, 0.01, "reaches the gel model");
     for bad in ["-1e-3", "0.2", "nan", "inf"] {
         let e = set(&[("solver.far_residual_tolerance", bad)]).unwrap_err();
@@ -335,10 +347,10 @@ fn factorisation_defaults_follow_the_mode() {
     let whole = set(&[("solver.defer_far", "false")]).unwrap();
     assert!(!whole.solver.defer_far);
     assert!(
-        !crate::setup::gel_params(&whole).defer_far,
+        !crate::setup::gel_params(&whole, 1500).defer_far,
         "reaches the gel model"
     );
-    assert!(crate::setup::gel_params(&s).defer_far);
+    assert!(crate::setup::gel_params(&s, 1500).defer_far);
     for bad in ["1", "\"yes\""] {
         let e = set(&[("solver.defer_far", bad)]).unwrap_err();
         assert_eq!(e.field, "solver.defer_far", "{bad}");
@@ -347,10 +359,10 @@ fn factorisation_defaults_follow_the_mode() {
         !s.solver.asynchronous_factor,
         "the default: runs repeat bit for bit"
     );
-    assert!(!crate::setup::gel_params(&s).asynchronous_factor);
+    assert!(!crate::setup::gel_params(&s, 1500).asynchronous_factor);
     let asynchronous = set(&[("solver.asynchronous_factor", "true")]).unwrap();
     assert!(
-        crate::setup::gel_params(&asynchronous).asynchronous_factor,
+        crate::setup::gel_params(&asynchronous, 1500).asynchronous_factor,
         "reaches the gel model"
     );
     for bad in ["1", "\"never\""] {
