@@ -748,11 +748,12 @@ impl SolverSpec {
     /// [`FAR_REFRESH_AUTO_MIN_NODES`] nodes on [`crate::free_motion::LAG_ROTATION_LIMIT`] (or
     /// `refresh_rotation` if that is larger), below it `refresh_rotation`.
     pub fn far_refresh_rotation(&self, nodes: usize) -> f64 {
-        self.far_refresh_rotation.unwrap_or(if nodes >= FAR_REFRESH_AUTO_MIN_NODES {
-            crate::free_motion::LAG_ROTATION_LIMIT.max(self.refresh_rotation)
-        } else {
-            self.refresh_rotation
-        })
+        self.far_refresh_rotation
+            .unwrap_or(if nodes >= FAR_REFRESH_AUTO_MIN_NODES {
+                crate::free_motion::LAG_ROTATION_LIMIT.max(self.refresh_rotation)
+            } else {
+                self.refresh_rotation
+            })
     }
 
     /// `refactor_every` as set, or its default: with `gel_solve = "direct"`, 2 with the

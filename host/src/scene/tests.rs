@@ -285,20 +285,34 @@ fn factorisation_defaults_follow_the_mode() {
     }
     // Absent: `refresh_rotation` below FAR_REFRESH_AUTO_MIN_NODES nodes, the limit from it.
     let small = FAR_REFRESH_AUTO_MIN_NODES - 1;
-    assert_eq!(s.solver.far_refresh_rotation(small), s.solver.refresh_rotation);
+    assert_eq!(
+        s.solver.far_refresh_rotation(small),
+        s.solver.refresh_rotation
+    );
     assert_eq!(
         s.solver.far_refresh_rotation(FAR_REFRESH_AUTO_MIN_NODES),
         LAG_ROTATION_LIMIT
     );
     let far = set(&[("solver.far_refresh_rotation", "0.08")]).unwrap();
     for nodes in [small, FAR_REFRESH_AUTO_MIN_NODES] {
-        assert_eq!(far.solver.far_refresh_rotation(nodes), 0.08, "as set, at {nodes} nodes");
+        assert_eq!(
+            far.solver.far_refresh_rotation(nodes),
+            0.08,
+            "as set, at {nodes} nodes"
+        );
     }
     let limit = LAG_ROTATION_LIMIT.to_string();
     let at_limit = set(&[("solver.far_refresh_rotation", limit.as_str())]).unwrap();
-    assert_eq!(at_limit.solver.far_refresh_rotation(small), LAG_ROTATION_LIMIT);
+    assert_eq!(
+        at_limit.solver.far_refresh_rotation(small),
+        LAG_ROTATION_LIMIT
+    );
     // The gel's parameters follow the size.
-    let far_rotation = |nodes| crate::setup::gel_params(&s, nodes).refresh.map(|r| r.far_rotation);
+    let far_rotation = |nodes| {
+        crate::setup::gel_params(&s, nodes)
+            .refresh
+            .map(|r| r.far_rotation)
+    };
     assert_eq!(far_rotation(1500), Some(s.solver.refresh_rotation));
     assert_eq!(far_rotation(19_800), Some(LAG_ROTATION_LIMIT));
     for bad in ["0", "-0.1", "0.3", "nan"] {
@@ -336,7 +350,10 @@ fn factorisation_defaults_follow_the_mode() {
     assert_eq!(s.solver.far_residual_tolerance, 1e-3, "the default");
     let exact = set(&[("solver.far_residual_tolerance", "0")]).unwrap();
     assert_eq!(exact.solver.far_residual_tolerance, 0.0);
-    let gel = crate::setup::gel_params(&set(&[("solver.far_residual_tolerance", "0.01")]).unwrap(), 1500);
+    let gel = crate::setup::gel_params(
+        &set(&[("solver.far_residual_tolerance", "0.01")]).unwrap(),
+        1500,
+    );
     assert_eq!(gel.far_residual_tolerance, 0.01, "reaches the gel model");
     for bad in ["-1e-3", "0.2", "nan", "inf"] {
         let e = set(&[("solver.far_residual_tolerance", bad)]).unwrap_err();
