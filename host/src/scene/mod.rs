@@ -646,7 +646,8 @@ pub const NEAR_AUTO_MIN_NODES: usize = 1000;
 /// takes about 0.85 s at 19 800 nodes (many steps of CPU on the second core, and the step
 /// that adopts it waits); there the complex scene's CPU per step falls by a fifth with the
 /// same errors within 0.004 mm. On the 1500-node suites the same setting lost targets and hit
-/// an obstacle, and saved no CPU (`docs/architecture.md`).
+/// an obstacle (`docs/architecture.md`). With `asynchronous_factor` the far elements keep
+/// `refresh_rotation` at any size ([`SolverSpec::far_refresh_rotation`]).
 pub const FAR_REFRESH_AUTO_MIN_NODES: usize = 10_000;
 
 /// The near block's radius, or when to have one (`solver.near_radius`).

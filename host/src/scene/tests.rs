@@ -307,13 +307,13 @@ fn factorisation_defaults_follow_the_mode() {
         at_limit.solver.far_refresh_rotation(small),
         LAG_ROTATION_LIMIT
     );
-    // The gel's parameters follow the size.
     // A loop with a deadline keeps the background refreshes at any size.
     let deadline = set(&[("solver.asynchronous_factor", "true")]).unwrap();
     assert_eq!(
         deadline.solver.far_refresh_rotation(19_800),
         deadline.solver.refresh_rotation
     );
+    // The gel's parameters follow the size.
     let far_rotation = |nodes| {
         crate::setup::gel_params(&s, nodes)
             .refresh
