@@ -22,6 +22,7 @@
 
 use crate::run::{RunError, RunOptions, RunSummary, replay, run};
 use crate::scene::{Scene, SceneError};
+use nalgebra::Vector3;
 use serde::Serialize;
 
 /// The exact step's scene overrides: the whole gel factorised at every step, synchronously, in
@@ -68,6 +69,8 @@ pub struct ExactRun {
     pub summary: RunSummary,
     /// The joints of every step, in order.
     pub joints: Vec<[f64; 6]>,
+    /// The tip's position at the end of every step [mm].
+    pub tips: Vec<Vector3<f64>>,
 }
 
 /// The exact step's and a pipeline's errors on the same joints.
@@ -81,6 +84,13 @@ pub struct AccuracyCost {
     pub steps: usize,
     /// Whether the exact closed loop reached its last planned step.
     pub exact_completed: bool,
+    /// How many steps, from the first, end with the two tips within [`TOLERANCE_MM`] of each
+    /// other (`steps` when all do): where the replay departs from the exact run, e.g. at a
+    /// contact that slips in one and sticks in the other.
+    pub agreeing_steps: usize,
+    /// The largest distance between the two tips at the end of a step [mm] (NaN when a tip
+    /// is not finite).
+    pub tip_difference_max_mm: f64,
 }
 
 impl AccuracyCost {
@@ -134,9 +144,11 @@ pub fn exact_run(scene: &Scene, steps: Option<usize>) -> Result<ExactRun, Accura
     let joints = (closed.reports.iter())
         .map(|r| r.q.to_array::<6>().ok_or(AccuracyError::Joints(r.q.len())))
         .collect::<Result<Vec<_>, _>>()?;
+    let tips = closed.reports.iter().map(|r| r.tip).collect();
     Ok(ExactRun {
         summary: closed.summary,
         joints,
+        tips,
     })
 }
 
@@ -147,12 +159,33 @@ pub fn exact_run(scene: &Scene, steps: Option<usize>) -> Result<ExactRun, Accura
 /// [`AccuracyError::Run`] when the scene cannot be set up.
 pub fn replayed(scene: &Scene, exact: &ExactRun) -> Result<AccuracyCost, AccuracyError> {
     let replay = replay(scene, exact.joints.clone())?;
+    let tips: Vec<Vector3<f64>> = replay.reports.iter().map(|r| r.tip).collect();
+    let (agreeing_steps, tip_difference_max_mm) =
+        tip_agreement(&exact.tips, &tips, TOLERANCE_MM);
     Ok(AccuracyCost {
         exact: Errors::of(&exact.summary),
         pipeline: Errors::of(&replay.summary),
         steps: replay.summary.steps,
         exact_completed: exact.summary.completed,
+        agreeing_steps,
+        tip_difference_max_mm,
     })
+}
+
+/// Over the steps both runs made: how many leading steps have their tips within `tolerance_mm`
+/// of each other, and the largest distance between them (NaN when one is not finite; a
+/// non-finite step ends the agreement).
+pub fn tip_agreement(a: &[Vector3<f64>], b: &[Vector3<f64>], tolerance_mm: f64) -> (usize, f64) {
+    let mut agreeing = None;
+    let mut largest = 0.0f64;
+    for (k, (x, y)) in a.iter().zip(b).enumerate() {
+        let d = (x - y).norm();
+        largest = if d.is_nan() || largest.is_nan() { f64::NAN } else { largest.max(d) };
+        if agreeing.is_none() && !(d <= tolerance_mm) {
+            agreeing = Some(k);
+        }
+    }
+    (agreeing.unwrap_or(a.len().min(b.len())), largest)
 }
 
 #[cfg(test)]
@@ -174,6 +207,8 @@ mod tests {
             pipeline: errors(b),
             steps: 10,
             exact_completed: true,
+            agreeing_steps: 10,
+            tip_difference_max_mm: 0.0,
         };
         let c = cost([0.1, 0.5, 0.02], [0.11, 0.47, 0.09]);
         assert!((c.largest_difference_mm() - 0.07).abs() < 1e-12);
@@ -181,6 +216,25 @@ mod tests {
         let n = cost([0.1, f64::NAN, 0.0], [0.1, 0.5, 0.0]);
         assert!(n.largest_difference_mm().is_nan());
         assert!(!n.within(1e9), "a NaN difference is never within");
+    }
+
+    #[test]
+    fn tip_agreement_counts_the_steps_before_the_first_departure() {
+        let v = |x| Vector3::new(x, 0.0, 0.0);
+        let a = [v(0.0), v(1.0), v(2.0), v(3.0)];
+        // Within the tolerance, then a departure at step 2; step 3 back within it does not
+        // extend the agreement.
+        let b = [v(0.01), v(1.04), v(2.2), v(3.0)];
+        let (n, largest) = tip_agreement(&a, &b, 0.05);
+        assert_eq!(n, 2);
+        assert!((largest - 0.2).abs() < 1e-12, "{largest}");
+        // All within: every step both runs made (the shorter one's count).
+        assert_eq!(tip_agreement(&a, &a[..3], 0.05), (3, 0.0));
+        // A non-finite tip ends the agreement and makes the largest difference NaN.
+        let c = [v(0.0), v(f64::NAN), v(2.0), v(3.0)];
+        let (n, largest) = tip_agreement(&a, &c, 0.05);
+        assert_eq!(n, 1);
+        assert!(largest.is_nan());
     }
 
     #[test]
@@ -202,6 +256,8 @@ mod tests {
             .collect();
         let same = replayed(&scene.with_overrides(&overrides).unwrap(), &exact).unwrap();
         assert_eq!(same.steps, 250);
+        assert_eq!(same.agreeing_steps, 250, "{same:?}");
+        assert!(same.tip_difference_max_mm < 1e-6, "{same:?}");
         let bound = 0.1 * scene.solver.gs_tolerance;
         assert!(
             same.largest_difference_mm() < bound,

@@ -291,7 +291,7 @@ pub const SECTION_TITLE: &str =
     "Accuracy cost of the gel pipeline: the exact step's joints replayed open loop";
 
 /// The columns of `accuracy_cost.csv`.
-const HEADER: [&str; 13] = [
+const HEADER: [&str; 15] = [
     "scene",
     "pipeline",
     "steps",
@@ -304,6 +304,8 @@ const HEADER: [&str; 13] = [
     "pipeline_e_final_mm",
     "largest_difference_mm",
     "within_tolerance",
+    "agreeing_steps",
+    "tip_difference_max_mm",
     "failure",
 ];
 
@@ -334,6 +336,8 @@ pub(super) fn write_csv(path: &Path, rows: &[AccuracyRow]) -> Result<(), ReportE
                     n(c.pipeline.e_final_mm),
                     n(c.largest_difference_mm()),
                     c.within(TOLERANCE_MM).to_string(),
+                    c.agreeing_steps.to_string(),
+                    n(c.tip_difference_max_mm),
                     String::new(),
                 ]),
                 None => {
