@@ -125,20 +125,6 @@ impl TetLocator {
         }
         best.map(|(_, e)| e)
     }
-
-    /// How many elements hold `p` (every barycentric weight ≥ 0): 1 inside a mesh whose
-    /// elements do not overlap, 0 outside it or in a gap, more than 1 where elements fold
-    /// over each other (an inverted region, or a point on a shared face).
-    pub fn holders(&self, nodes: &[Vector3<f64>], tets: &[[usize; 4]], p: &Vector3<f64>) -> usize {
-        let query = Aabb::new(to_g(p), to_g(p));
-        (self.bvh.intersect_aabb(&query))
-            .filter(|&leaf| {
-                let t = tets[leaf as usize];
-                let x = [nodes[t[0]], nodes[t[1]], nodes[t[2]], nodes[t[3]]];
-                barycentric_tet(&x, p).is_some_and(|w| w.iter().all(|v| *v >= 0.0))
-            })
-            .count()
-    }
 }
 
 /// Distance [mm] from `p` to the axis-aligned box of `nodes` (0 inside it; infinite without

@@ -11,7 +11,7 @@ use super::Interaction;
 use crate::compliance::PointColumns;
 use crate::constraints::{ConstraintSet, GroupRole, Model};
 use crate::error::SimError;
-use crate::proximity::{Embedded, SurfaceProjector, TetLocator};
+use crate::proximity::{Embedded, TetLocator};
 use crate::world::{SlidingPoint, World, element_size};
 
 /// The constraint forces of a step, by role.
@@ -80,65 +80,18 @@ pub fn update<const N: usize>(
     Ok(punctured_now)
 }
 
-/// How far from the tip the surface point it punctures may lie [mm] (the tip contact holds the
-/// tip on the surface to the solve's tolerance; the volume search reaches as far).
-const PUNCTURE_REACH: f64 = 2.0;
-
 /// The tip punctured the surface: the contact gives way to a sliding point at the entry.
-///
-/// The entry is the element the volume search finds for the tip ([`TetLocator::locate`]:
-/// the one holding it, or the nearest when the tip is just outside the surface it pressed),
-/// unless several elements hold the tip: then the tip sits in a fold of elements pushed over
-/// each other under a deep indentation, or on a face they share, and the entry is the
-/// material point of the surface under the tip ([`surface_point`]).
 fn puncture<const N: usize>(world: &mut World<N>) -> Result<(), SimError> {
     let tip = world.tip();
     let (nodes, tets) = (world.gel.positions(), &world.gel.mesh().tets);
-    let locator = TetLocator::new(nodes, tets);
-    let at = if locator.holders(nodes, tets, &tip) < 2 {
-        None
-    } else {
-        surface_point(nodes, tets, &world.surface, &tip)
-    };
-    let at = at
-        .or_else(|| locator.locate(nodes, tets, &tip, PUNCTURE_REACH))
+    let at = TetLocator::new(nodes, tets)
+        .locate(nodes, tets, &tip, 2.0)
         .ok_or(SimError::PunctureOffGel(tip))?;
     world.punctured = true;
     world.entry = at;
     add_sliding(world, at);
     world.last_sliding_depth = 0.0;
     Ok(())
-}
-
-/// The surface point closest to `p` (within [`PUNCTURE_REACH`]), embedded in the element whose
-/// face it lies on: the face's three nodes carry the point's weights, the fourth none.
-///
-/// Where the tip has pushed the surface in far enough to fold the elements under it (a soft
-/// gel indented by more than an element before it gives way), the tip lies inside several
-/// elements at once, inverted ones among them, and which one a volume search finds first
-/// depends on the round-off of the positions. An entry embedded in the wrong one maps to a
-/// point deep inside the gel once the gel relaxes: `simple_soft` (3 kPa, indented 13.8 mm, 4
-/// elements inverted at puncture) measured its depth from 11 mm under the surface for the
-/// whole insertion in one run and from the surface in another with the same joints.
-pub(crate) fn surface_point(
-    nodes: &[nalgebra::Vector3<f64>],
-    tets: &[[usize; 4]],
-    surface: &[[usize; 3]],
-    p: &nalgebra::Vector3<f64>,
-) -> Option<Embedded> {
-    let hit = SurfaceProjector::new(nodes, surface).project(nodes, surface, p, PUNCTURE_REACH)?;
-    let face = surface[hit.triangle];
-    tets.iter().enumerate().find_map(|(tet, t)| {
-        let mut weights = [0.0; 4];
-        let mut found = 0;
-        for (k, v) in t.iter().enumerate() {
-            if let Some(j) = face.iter().position(|f| f == v) {
-                weights[k] = hit.weights[j];
-                found += 1;
-            }
-        }
-        (found == 3).then_some(Embedded { tet, weights })
-    })
 }
 
 fn add_sliding<const N: usize>(world: &mut World<N>, at: Embedded) {
@@ -192,61 +145,5 @@ fn update_sliding_points<const N: usize>(world: &mut World<N>, inter: &Interacti
             add_sliding(world, at);
             world.last_sliding_depth = depth;
         }
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::mesh::box_mesh;
-    use nalgebra::Vector3;
-
-    /// `simple_soft` measured its depth from 11 mm under the gel's surface for a whole
-    /// insertion: the tip punctured a deep indentation where elements folded over each other,
-    /// and the volume search embedded the entry in one of the folded elements. The entry of a
-    /// folded region is the surface's material point under the tip.
-    #[test]
-    fn a_puncture_in_a_fold_is_embedded_on_the_surface_under_the_tip() {
-        let mesh = box_mesh(Vector3::zeros(), Vector3::new(20.0, 20.0, 20.0), 300);
-        let surface = mesh.surface_triangles();
-        let mut nodes = mesh.nodes.clone();
-        // Push the top node nearest the middle 12 mm down, through the elements under it.
-        let top = (0..nodes.len())
-            .filter(|&i| nodes[i].z > 19.999)
-            .min_by(|&a, &b| {
-                let d = |i: usize| (nodes[i].xy() - nalgebra::Vector2::new(10.0, 10.0)).norm();
-                d(a).total_cmp(&d(b))
-            })
-            .unwrap();
-        nodes[top].z -= 12.0;
-        let tip = nodes[top] + Vector3::new(0.0, 0.0, 0.01);
-        let locator = TetLocator::new(&nodes, &mesh.tets);
-        assert!(
-            locator.holders(&nodes, &mesh.tets, &tip) >= 2,
-            "the indentation folds elements over the tip"
-        );
-        let at = surface_point(&nodes, &mesh.tets, &surface, &tip).expect("a surface point");
-        // On a surface face of its element, at the pushed node (the surface's closest point).
-        let t = mesh.tets[at.tet];
-        let face: Vec<usize> = (0..4)
-            .filter(|&k| at.weights[k] != 0.0)
-            .map(|k| t[k])
-            .collect();
-        assert!(
-            surface.iter().any(|f| face.iter().all(|v| f.contains(v))),
-            "embedded on a surface face: {at:?}"
-        );
-        let p = at.position(&nodes, &mesh.tets);
-        assert!(
-            (p - nodes[top]).norm() < 0.02,
-            "{p:?} against {:?}",
-            nodes[top]
-        );
-        // Back at rest, the entry is on the top surface, not inside the gel.
-        let rest = at.position(&mesh.nodes, &mesh.tets);
-        assert!(rest.z > 19.99, "the entry at rest: {rest:?}");
-        // Away from any fold one element holds a point, and nothing changes there.
-        let inside = Vector3::new(7.3, 8.1, 6.2);
-        assert_eq!(locator.holders(&nodes, &mesh.tets, &inside), 1);
     }
 }
