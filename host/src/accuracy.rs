@@ -160,8 +160,7 @@ pub fn exact_run(scene: &Scene, steps: Option<usize>) -> Result<ExactRun, Accura
 pub fn replayed(scene: &Scene, exact: &ExactRun) -> Result<AccuracyCost, AccuracyError> {
     let replay = replay(scene, exact.joints.clone())?;
     let tips: Vec<Vector3<f64>> = replay.reports.iter().map(|r| r.tip).collect();
-    let (agreeing_steps, tip_difference_max_mm) =
-        tip_agreement(&exact.tips, &tips, TOLERANCE_MM);
+    let (agreeing_steps, tip_difference_max_mm) = tip_agreement(&exact.tips, &tips, TOLERANCE_MM);
     Ok(AccuracyCost {
         exact: Errors::of(&exact.summary),
         pipeline: Errors::of(&replay.summary),
@@ -180,7 +179,11 @@ pub fn tip_agreement(a: &[Vector3<f64>], b: &[Vector3<f64>], tolerance_mm: f64) 
     let mut largest = 0.0f64;
     for (k, (x, y)) in a.iter().zip(b).enumerate() {
         let d = (x - y).norm();
-        largest = if d.is_nan() || largest.is_nan() { f64::NAN } else { largest.max(d) };
+        largest = if d.is_nan() || largest.is_nan() {
+            f64::NAN
+        } else {
+            largest.max(d)
+        };
         if agreeing.is_none() && !(d <= tolerance_mm) {
             agreeing = Some(k);
         }
