@@ -184,7 +184,7 @@ pub fn tip_agreement(a: &[Vector3<f64>], b: &[Vector3<f64>], tolerance_mm: f64) 
         } else {
             largest.max(d)
         };
-        if agreeing.is_none() && !(d <= tolerance_mm) {
+        if agreeing.is_none() && (d.is_nan() || d > tolerance_mm) {
             agreeing = Some(k);
         }
     }

@@ -125,6 +125,32 @@ impl TetLocator {
         }
         best.map(|(_, e)| e)
     }
+
+    /// Every element holding `p` (every barycentric weight ≥ 0), with its coordinates, in
+    /// element order: one inside a mesh whose elements do not overlap, none outside it or in
+    /// a gap, several where elements fold over each other (an inverted region) or on a face
+    /// they share.
+    pub fn holding(
+        &self,
+        nodes: &[Vector3<f64>],
+        tets: &[[usize; 4]],
+        p: &Vector3<f64>,
+    ) -> Vec<Embedded> {
+        let query = Aabb::new(to_g(p), to_g(p));
+        let mut held: Vec<Embedded> = (self.bvh.intersect_aabb(&query))
+            .filter_map(|leaf| {
+                let tet = leaf as usize;
+                let t = tets[tet];
+                let x = [nodes[t[0]], nodes[t[1]], nodes[t[2]], nodes[t[3]]];
+                let w = barycentric_tet(&x, p)?;
+                w.iter()
+                    .all(|v| *v >= 0.0)
+                    .then_some(Embedded { tet, weights: w })
+            })
+            .collect();
+        held.sort_by_key(|e| e.tet);
+        held
+    }
 }
 
 /// Distance [mm] from `p` to the axis-aligned box of `nodes` (0 inside it; infinite without
