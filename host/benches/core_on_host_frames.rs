@@ -64,7 +64,7 @@ fn record(nodes: usize) -> (Vec<Box<ComplianceFrame<ROWS>>>, Robot<6>, InversePa
     let setup = Setup::build(&scene).expect("the benchmark scene builds");
     let (mut world, params, planned) = (setup.world, setup.params, setup.plan.steps);
     let mut rec = Recorder {
-        core: InProcess::new(setup.robot.clone(), setup.inverse),
+        core: InProcess::new(setup.robot, setup.inverse),
         step: 0,
         frames: Vec::with_capacity(WINDOW),
     };
@@ -105,7 +105,7 @@ fn bench(c: &mut Criterion) {
         };
         for (suffix, params) in [("", inverse), ("_sor12", sor)] {
             let name = format!("core_step_complex_{nodes}_nodes_m{rows:.0}{suffix}");
-            let mut ctrl = Controller::<ROWS>::new_boxed(robot.clone(), params);
+            let mut ctrl = Controller::<ROWS>::new_boxed(robot, params);
             let mut cmd = Command::<ROWS>::new_boxed();
             for f in &frames {
                 ctrl.step(f, &mut cmd).expect("a recorded frame is valid");
