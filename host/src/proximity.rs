@@ -69,6 +69,11 @@ impl Embedded {
         let t = tets[self.tet];
         (0..4).map(|k| self.weights[k] * nodes[t[k]]).sum()
     }
+
+    /// The smallest barycentric weight: ≥ 0 inside the element, the deeper inside the larger.
+    pub fn min_weight(&self) -> f64 {
+        self.weights.iter().copied().fold(f64::INFINITY, f64::min)
+    }
 }
 
 /// Point location in a tetrahedral mesh through a BVH of element boxes.
@@ -115,9 +120,10 @@ impl TetLocator {
             let Some(w) = barycentric_tet(&x, p) else {
                 continue;
             };
-            let worst = w.iter().copied().fold(f64::INFINITY, f64::min);
+            let e = Embedded { tet, weights: w };
+            let worst = e.min_weight();
             if best.as_ref().is_none_or(|(b, _)| worst > *b) {
-                best = Some((worst, Embedded { tet, weights: w }));
+                best = Some((worst, e));
             }
             if worst >= 0.0 {
                 break;
@@ -126,8 +132,8 @@ impl TetLocator {
         best.map(|(_, e)| e)
     }
 
-    /// Every element holding `p` (every barycentric weight ≥ 0), with its coordinates, in
-    /// element order: one inside a mesh whose elements do not overlap, none outside it or in
+    /// Every element holding `p` (every barycentric weight ≥ 0), with its coordinates, in the
+    /// search's order: one inside a mesh whose elements do not overlap, none outside it or in
     /// a gap, several where elements fold over each other (an inverted region) or on a face
     /// they share.
     pub fn holding(
@@ -137,19 +143,18 @@ impl TetLocator {
         p: &Vector3<f64>,
     ) -> Vec<Embedded> {
         let query = Aabb::new(to_g(p), to_g(p));
-        let mut held: Vec<Embedded> = (self.bvh.intersect_aabb(&query))
+        (self.bvh.intersect_aabb(&query))
             .filter_map(|leaf| {
                 let tet = leaf as usize;
                 let t = tets[tet];
                 let x = [nodes[t[0]], nodes[t[1]], nodes[t[2]], nodes[t[3]]];
-                let w = barycentric_tet(&x, p)?;
-                w.iter()
-                    .all(|v| *v >= 0.0)
-                    .then_some(Embedded { tet, weights: w })
+                let e = Embedded {
+                    tet,
+                    weights: barycentric_tet(&x, p)?,
+                };
+                (e.min_weight() >= 0.0).then_some(e)
             })
-            .collect();
-        held.sort_by_key(|e| e.tet);
-        held
+            .collect()
     }
 }
 

@@ -120,9 +120,12 @@ fn puncture<const N: usize>(world: &mut World<N>) -> Result<(), SimError> {
 /// its element holds most deeply: the largest smallest barycentric weight, the lower element
 /// index on a tie; whatever the order of `held`.
 pub(crate) fn deepest_holder(held: &[Embedded]) -> Option<Embedded> {
-    let inner = |e: &Embedded| e.weights.iter().copied().fold(f64::INFINITY, f64::min);
     held.iter()
-        .max_by(|a, b| inner(a).total_cmp(&inner(b)).then(b.tet.cmp(&a.tet)))
+        .max_by(|a, b| {
+            a.min_weight()
+                .total_cmp(&b.min_weight())
+                .then(b.tet.cmp(&a.tet))
+        })
         .copied()
 }
 
@@ -261,8 +264,7 @@ mod tests {
         let mut reversed = held.clone();
         reversed.reverse();
         assert_eq!(deepest_holder(&reversed), Some(deepest));
-        let inner = |e: &Embedded| e.weights.iter().copied().fold(f64::INFINITY, f64::min);
-        assert!(held.iter().all(|e| inner(e) <= inner(&deepest)));
+        assert!(held.iter().all(|e| e.min_weight() <= deepest.min_weight()));
         // Away from any fold one element holds a point, and nothing changes there.
         let inside = Vector3::new(7.3, 8.1, 6.2);
         assert_eq!(locator.holding(&nodes, &mesh.tets, &inside).len(), 1);
