@@ -131,7 +131,9 @@ fn target_waits_for_a_lagging_tip_with_a_finite_max_lead() {
 /// (`aim_ahead = 0`, the default) it runs beside the path to the end. The
 /// suite's `bend_y`: from 10 mm deep on, the tip ran 0.32–0.47 mm beside its path with the
 /// tangent alone and 0.19–0.23 mm with the look-ahead (`needle run scenes/suite/bend_y.toml
-/// [--set inverse.aim_ahead=0] --out DIR`, `steps.csv`).
+/// [--set inverse.aim_ahead=0] --out DIR`, `steps.csv`). Measured with the tip's error now
+/// (`inverse.qp_horizon = 0`): the horizon (3 mm, the default since 2026-12-05) closes part of
+/// that gap by itself (deep mean 0.199 mm with the tangent alone, 0.170 mm with the look-ahead).
 #[test]
 #[ignore = "two full insertions (release, ~3 s): run with --include-ignored"]
 fn a_tip_beside_a_bent_path_cuts_back_towards_it() {
@@ -151,12 +153,47 @@ fn a_tip_beside_a_bent_path_cuts_back_towards_it() {
         let max = deep.iter().copied().fold(0.0_f64, f64::max);
         (mean, max, result.summary)
     };
-    let (mean0, max0, _) = deep_error(&[("inverse.aim_ahead".into(), "0.0".into())]);
-    let (mean, max, s) = deep_error(&[("inverse.aim_ahead".into(), "10.0".into())]);
+    let now = ("inverse.qp_horizon".to_string(), "0.0".to_string());
+    let (mean0, max0, _) = deep_error(&[("inverse.aim_ahead".into(), "0.0".into()), now.clone()]);
+    let (mean, max, s) = deep_error(&[("inverse.aim_ahead".into(), "10.0".into()), now]);
     eprintln!(
         "tangent alone: mean {mean0:.3}, max {max0:.3} mm; look-ahead: mean {mean:.3}, max {max:.3} mm"
     );
     assert_eq!(s.outcome, needle_host::run::Outcome::Reached, "{s:?}");
     assert!(mean < 0.75 * mean0, "mean {mean} mm against {mean0} mm");
     assert!(max < 0.3, "max {max} mm");
+}
+
+/// `inverse.qp_horizon` (3 mm, the default since 2026-12-05): the tip's stage works on the
+/// error predicted along the tip's heading, so a tip that runs ahead inside a bend, its heading
+/// already closing the error, keeps turning with the path. With the error now (`qp_horizon = 0`)
+/// the public `needle_thin` spent its heading to erase a 0.3 mm lead inside its bend (step 306:
+/// the tip's slope −0.168 against the path's −0.196; step 342: −0.003 against −0.18), never
+/// turned fast enough again and stopped blocked at its obstacle's margin 18.7 mm from its
+/// target; with the horizon it ends 3.5 mm from it (`needle run
+/// scenes/suite/needle_thin.toml --json [--set inverse.qp_horizon=0]`).
+#[test]
+#[ignore = "two full insertions (release, ~3 s): run with --include-ignored"]
+fn a_lead_inside_the_bend_is_not_spent_on_the_heading() {
+    let end = |horizon: &str| {
+        let scene = suite_scene("needle_thin")
+            .with_overrides(&[("inverse.qp_horizon".into(), horizon.into())])
+            .expect("override");
+        run(&scene, &RunOptions::default(), |_| {})
+            .expect("the run starts")
+            .summary
+    };
+    let (now, ahead) = (end("0.0"), end("3.0"));
+    eprintln!(
+        "error now: e_final {:.3} mm, {:?}; predicted 3 mm along the heading: e_final {:.3} mm, {:?}",
+        now.e_final_mm, now.outcome, ahead.e_final_mm, ahead.outcome
+    );
+    assert!(
+        ahead.e_final_mm < 0.5 * now.e_final_mm,
+        "e_final {} mm against {} mm",
+        ahead.e_final_mm,
+        now.e_final_mm
+    );
+    assert!(!ahead.obstacle_hit, "{:?}", ahead.clearances);
+    assert_ne!(ahead.outcome, needle_host::run::Outcome::Diverged);
 }

@@ -93,6 +93,26 @@ pub(super) fn aim_direction(
     if aim.norm() > 0.0 { aim } else { *tangent }
 }
 
+/// The tip's error `s` further along (docs of [`super::InverseParams::qp_horizon`]):
+/// `e + s |t| (t̂ − ĥ)`, with `t̂` and `ĥ` the unit tangent and tip direction. The target
+/// tangent `t` is a difference quotient over 1 mm of path, so `|t|` ≈ 1 along the path and
+/// falls to 0 over its last millimetre: the horizon closes smoothly at the path's end, where
+/// the objective is the error itself. `e` itself when not inserted, `s` = 0, or the tip
+/// direction vanishes.
+pub(super) fn predicted_error(
+    inserted: bool,
+    s: f64,
+    tangent: &Vector3<f64>,
+    tip_dir: &Vector3<f64>,
+    e: &Vector3<f64>,
+) -> Vector3<f64> {
+    let nh = tip_dir.norm();
+    if !inserted || !(s > 0.0) || !(nh > 0.0) {
+        return *e;
+    }
+    e + (tangent - tip_dir * (tangent.norm() / nh)) * s
+}
+
 /// The objective for constraint forces `lambda` and needle-base pose `b` (from forward
 /// kinematics), see the module docs.
 pub fn evaluate_objective<const M: usize, const N: usize>(
@@ -114,6 +134,11 @@ pub fn evaluate_objective<const M: usize, const N: usize>(
         super::StepMethod::Paper => 0.0,
     };
     let heading = aim_direction(frame.inserted != 0, look_ahead, &tangent, &e);
+    let horizon = match params.method {
+        super::StepMethod::Qp => params.qp_horizon,
+        super::StepMethod::Paper => 0.0,
+    };
+    let e = predicted_error(frame.inserted != 0, horizon, &tangent, &tip_dir, &e);
     let (phi1, theta1) = rotation_between(&heading, &tip_dir);
     let (phi2, theta2) = rotation_between(&(entry - b.translation), &b.z_axis());
     let k = blend_factor(

@@ -357,6 +357,48 @@ fn aim_ahead_points_the_heading_back_towards_the_path() {
     assert!((theta - (0.2f64).atan()).abs() < 1e-12, "{theta}");
 }
 
+/// `InverseParams::qp_horizon`: once inserted, the position rows are the tip's error `s`
+/// further along, the target carried along the path's tangent and the tip along its heading:
+/// a tip inside a bend whose heading already closes the error predicts a smaller error than it
+/// has now; the error itself in the air, with no horizon, or with no tangent (the path's end).
+/// Its derivative, as the QP sees it, is the difference quotient of the same function, checked
+/// here against the analytic one along a turn of the heading.
+#[test]
+fn qp_horizon_predicts_the_error_along_the_heading() {
+    use super::objective::predicted_error;
+    use nalgebra::Vector3;
+    let t = Vector3::new(0.0, 0.0, -1.0); // the path goes down, |t| = 1 along it
+    let e = Vector3::new(0.3, 0.0, 0.0); // target − tip: the tip 0.3 mm off in −x
+    // The tip heads back towards the path at 0.1 rad: 3 mm on, the error has closed.
+    let a = 0.1f64;
+    let h = Vector3::new(libm::sin(a), 0.0, -libm::cos(a));
+    let p = predicted_error(true, 3.0, &t, &(h * 2.0), &e); // the direction's length is free
+    let expect = e + (t - h) * 3.0;
+    assert!((p - expect).norm() < 1e-15, "{p:?}");
+    assert!(p.x.abs() < e.x.abs(), "the heading closes the error: {p:?}");
+    for (inserted, s) in [(false, 3.0), (true, 0.0)] {
+        assert_eq!(predicted_error(inserted, s, &t, &h, &e), e);
+    }
+    // At the path's end the tangent's quotient vanishes, and the horizon with it.
+    assert_eq!(predicted_error(true, 3.0, &Vector3::zeros(), &h, &e), e);
+    let half = predicted_error(true, 3.0, &(t * 0.5), &h, &e);
+    assert!((half - (e + (t - h) * 1.5)).norm() < 1e-15, "{half:?}");
+    // d/da of the prediction as the heading turns: −s (cos a, 0, sin a).
+    let at = |a: f64| {
+        predicted_error(
+            true,
+            3.0,
+            &t,
+            &Vector3::new(libm::sin(a), 0.0, -libm::cos(a)),
+            &e,
+        )
+    };
+    let d = 1e-6;
+    let fd = (at(a + d) - at(a - d)) / (2.0 * d);
+    let exact = Vector3::new(libm::cos(a), 0.0, libm::sin(a)) * -3.0;
+    assert!((fd - exact).norm() < 1e-8, "{fd:?} against {exact:?}");
+}
+
 /// `secant_update` (the model of `InverseParams::replan_rejected`): afterwards the tip rows of
 /// `J` and the clearance gradients reproduce the change the solve found along the rejected step
 /// exactly, and are unchanged on every direction orthogonal to it; the angular row is kept.

@@ -212,6 +212,7 @@ impl Scene {
             qp_angle_weight: v.qp_angle_weight,
             qp_heading: v.qp_heading,
             aim_ahead: v.aim_ahead,
+            qp_horizon: v.qp_horizon,
             replan_rejected: v.replan_rejected,
             second_opinion: v.second_opinion,
             qp_angle_damping_max: v.qp_angle_damping_max,

@@ -418,6 +418,9 @@ pub struct InverseSpec {
     /// Look-ahead of the tip's heading once inserted [mm] (0: the path's tangent alone).
     #[serde(default = "default_aim_ahead")]
     pub aim_ahead: f64,
+    /// Horizon of the tip's position objective once inserted [mm] (0: the error now).
+    #[serde(default = "default_qp_horizon")]
+    pub qp_horizon: f64,
     /// Re-plan a `"qp"` step that its confirming solve rejected, with the Jacobian corrected by
     /// the secant along the rejected step (default false).
     #[serde(default = "default_replan_rejected")]
@@ -480,6 +483,7 @@ impl Default for InverseSpec {
             qp_angle_weight: default_qp_angle_weight(),
             qp_heading: default_qp_heading(),
             aim_ahead: default_aim_ahead(),
+            qp_horizon: default_qp_horizon(),
             replan_rejected: default_replan_rejected(),
             second_opinion: default_second_opinion(),
             qp_angle_damping_max: default_qp_angle_damping_max(),
