@@ -132,8 +132,8 @@ fn target_waits_for_a_lagging_tip_with_a_finite_max_lead() {
 /// suite's `bend_y`: from 10 mm deep on, the tip ran 0.32–0.47 mm beside its path with the
 /// tangent alone and 0.19–0.23 mm with the look-ahead (`needle run scenes/suite/bend_y.toml
 /// [--set inverse.aim_ahead=0] --out DIR`, `steps.csv`). Measured with the tip's error now
-/// (`inverse.qp_horizon = 0`): the horizon (3 mm, the default since 2026-12-05) closes part of
-/// that gap by itself (deep mean 0.199 mm with the tangent alone, 0.170 mm with the look-ahead).
+/// (`inverse.qp_horizon = 0`, the default): the horizon (3 mm) closes part of that gap by itself
+/// (deep mean 0.199 mm with the tangent alone, 0.170 mm with the look-ahead).
 #[test]
 #[ignore = "two full insertions (release, ~3 s): run with --include-ignored"]
 fn a_tip_beside_a_bent_path_cuts_back_towards_it() {
@@ -164,7 +164,7 @@ fn a_tip_beside_a_bent_path_cuts_back_towards_it() {
     assert!(max < 0.3, "max {max} mm");
 }
 
-/// `inverse.qp_horizon` (3 mm, the default since 2026-12-05): the tip's stage works on the
+/// `inverse.qp_horizon = 3` mm (an option, off by default): the tip's stage works on the
 /// error predicted along the tip's heading, so a tip that runs ahead inside a bend, its heading
 /// already closing the error, keeps turning with the path. With the error now (`qp_horizon = 0`)
 /// the public `needle_thin` spent its heading to erase a 0.3 mm lead inside its bend (step 306:

@@ -53,12 +53,7 @@ fn far_elements_move_the_replayed_tip_by_less_than_a_tenth_of_a_millimetre() {
     for nodes in sizes() {
         let nodes = nodes.as_str();
         let corot = scene(nodes, &[COROTATIONAL]);
-        // The joints: a closed loop with the tip's error now (`inverse.qp_horizon = 0`), the
-        // trajectory the bounds below were measured on. With the default horizon (3 mm) the
-        // linear far field moves the replayed tip by 0.101 mm (2026-12-05): the option's error
-        // depends on the trajectory, and the default far field is the corotational one.
-        let closed_scene = scene(nodes, &[COROTATIONAL, ("inverse.qp_horizon", "0")]);
-        let closed = run(&closed_scene, &RunOptions::default(), |_| {}).expect("closed loop runs");
+        let closed = run(&corot, &RunOptions::default(), |_| {}).expect("closed loop runs");
         let joints: Vec<[f64; 6]> = (closed.reports.iter())
             .map(|r| {
                 let mut q = [0.0; 6];

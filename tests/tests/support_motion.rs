@@ -411,10 +411,7 @@ fn breathing_complex_tracks_the_moving_path_when_the_motion_is_modelled() {
         s.e_mean_mm, s.e_max_mm, s.e_final_mm, s.outcome
     );
     assert_eq!(s.outcome, Outcome::Reached);
-    // e_mean 0.240 mm since the tip's error is predicted 3 mm along its heading
-    // (`inverse.qp_horizon`, 2026-12-05), as `complex` itself (0.253 mm): the tip is let run
-    // beside the path where its heading brings it back.
-    assert!(s.e_mean_mm <= 0.3, "e_mean {}", s.e_mean_mm);
+    assert!(s.e_mean_mm <= 0.15, "e_mean {}", s.e_mean_mm);
     assert!(s.e_max_mm <= 1.4, "e_max {}", s.e_max_mm);
     assert!(s.e_final_mm <= 0.05, "e_final {}", s.e_final_mm);
     assert!(

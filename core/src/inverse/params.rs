@@ -138,17 +138,18 @@ pub struct InverseParams {
     /// suites of 24–33 scenes (two generated after the value was chosen) the mean e_mean fell
     /// 17–39 % with the same 109 of 129 targets reached (`docs/benchmark.md`).
     pub aim_ahead: f64,
-    /// Horizon of the tip's position objective once inserted [mm] (default 3; 0: the error
-    /// now, the update before 2026-12-05). With `S` > 0 the position rows of `T` are the tip's
-    /// predicted error `S` further along, `e + S (t̂ − ĥ)`: the target carried along the path's
-    /// tangent `t̂`, the tip along its heading `ĥ`. Deep in the gel the tip goes where it points,
-    /// and an error the heading is already closing is then not corrected a second time by
-    /// turning the heading away from the path, which the needle cannot turn back in time
-    /// (public `needle_thin`: 0.3 mm inside its bend at step 306, the heading straightened to
-    /// erase that lead, then 0.19 behind the path's slope for good). On the public suite and
-    /// nine held-out sets (249 runs) 224 instead of 218 targets reached, the mean final error
-    /// 0.621 → 0.577 mm, the mean e_mean 0.222 → 0.268 mm; on four sets generated after the
-    /// value was chosen 90 instead of 86 (`docs/benchmark.md`).
+    /// Horizon of the tip's position objective once inserted [mm] (default 0: the error now).
+    /// With `S` > 0 the position rows of `T` are the tip's predicted error `S` further along,
+    /// `e + S (t̂ − ĥ)`: the target carried along the path's tangent `t̂`, the tip along its
+    /// heading `ĥ`. Deep in the gel the tip goes where it points, and an error the heading is
+    /// already closing is then not corrected a second time by turning the heading away from
+    /// the path, which the needle cannot turn back in time (public `needle_thin`: 0.3 mm inside
+    /// its bend at step 306, the heading straightened to erase that lead, then 0.19 behind the
+    /// path's slope for good). Measured at `S` = 3 (`docs/benchmark.md`): on 1500-node gels 224
+    /// instead of 218 of 249 suite runs reached and 90 instead of 86 of 96 on four new sets, but
+    /// `complex` tracked 0.094 → 0.253 mm, the 5040-node public suite lost a target, and the
+    /// gel pipeline's open-loop agreement with the exact step fell from 33 to 29 of 33 scenes
+    /// within 0.05 mm: left off.
     pub qp_horizon: f64,
     /// Re-plan a [`StepMethod::Qp`] step that its confirming solve rejected (default false):
     /// the solve at the rejected joints gives the constrained map's actual change along the
@@ -257,7 +258,7 @@ impl Default for InverseParams {
             limit_avoidance: 0.5,
             qp_heading: true,
             aim_ahead: 10.0,
-            qp_horizon: 3.0,
+            qp_horizon: 0.0,
             replan_rejected: false,
             resume_held: false,
             second_opinion: false,
