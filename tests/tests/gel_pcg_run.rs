@@ -81,7 +81,12 @@ fn pcg_insertion_stays_within_0_05_mm_of_the_synchronous_newton_step() {
     // gap (measured: 0.069 mm apart, errors 0.0024 mm apart).
     assert!(err < 0.05, "tracking errors {err} mm apart");
     assert!(tip < 0.2, "tips {tip} mm apart");
-    assert!(s.pcg_iterations_mean >= 1.0 && s.pcg_fallbacks == 0);
+    // The CG ran, and never fell back to the factor. How many iterations a step it takes
+    // depends on which steps the background factor arrives at, which the machine's load decides:
+    // three runs of the same binary on 2026-12-05 averaged 0.99, 1.02 and 1.13 (14–21
+    // background factorisations), so the bound is "about one a step", not 1.0 (which failed a
+    // fresh-clone CI run at 0.99).
+    assert!(s.pcg_iterations_mean >= 0.8 && s.pcg_fallbacks == 0);
     assert_eq!(s.immediate_factorizations, 1, "only the first step waits");
     assert!(
         s.background_factorizations <= 250 / 8 + 1,
