@@ -140,8 +140,9 @@ pub struct InverseParams {
     pub aim_ahead: f64,
     /// Horizon of the tip's position objective once inserted [mm] (default 0: the error now).
     /// With `S` > 0 the position rows of `T` are the tip's predicted error `S` further along,
-    /// `e + S (t̂ − ĥ)`: the target carried along the path's tangent `t̂`, the tip along its
-    /// heading `ĥ`. Deep in the gel the tip goes where it points, and an error the heading is
+    /// `e + S |t| (t̂ − ĥ)`: the target carried along the path's tangent `t̂`, the tip along its
+    /// heading `ĥ` (`|t|`, the tangent's quotient over 1 mm, closes the horizon over the path's
+    /// last millimetre). Deep in the gel the tip goes where it points, and an error the heading is
     /// already closing is then not corrected a second time by turning the heading away from
     /// the path, which the needle cannot turn back in time (public `needle_thin`: 0.3 mm inside
     /// its bend at step 306, the heading straightened to erase that lead, then 0.19 behind the
