@@ -49,6 +49,9 @@ pub struct Plan {
     /// The needle's steering length in the gel, [`steering_length`] of the scene's needle and
     /// gel [mm].
     pub steering_length_mm: f64,
+    /// The horizon of the `"qp"` update's tip objective, `inverse.qp_horizon` resolved
+    /// ([`crate::scene::HorizonSpec::horizon`] of the steering length under `"auto"`) [mm].
+    pub qp_horizon_mm: f64,
 }
 
 /// The length over which a needle bends as a beam on an elastic foundation, the gel:
@@ -469,11 +472,8 @@ fn plan(scene: &Scene) -> Plan {
         vtk_every: scene.output.vtk_every,
         support_motion: None,
         insert_only: scene.insertion.mode == crate::scene::InsertionMode::Insert,
-        steering_length_mm: steering_length(
-            scene.needle.diameter,
-            scene.needle.young_modulus,
-            scene.gel.young_modulus,
-        ),
+        steering_length_mm: scene.steering_length(),
+        qp_horizon_mm: scene.inverse_params().qp_horizon,
     }
 }
 

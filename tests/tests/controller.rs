@@ -132,8 +132,9 @@ fn target_waits_for_a_lagging_tip_with_a_finite_max_lead() {
 /// suite's `bend_y`: from 10 mm deep on, the tip ran 0.32–0.47 mm beside its path with the
 /// tangent alone and 0.19–0.23 mm with the look-ahead (`needle run scenes/suite/bend_y.toml
 /// [--set inverse.aim_ahead=0] --out DIR`, `steps.csv`). Measured with the tip's error now
-/// (`inverse.qp_horizon = 0`, the default): the horizon (3 mm) closes part of that gap by itself
-/// (deep mean 0.199 mm with the tangent alone, 0.170 mm with the look-ahead).
+/// (`inverse.qp_horizon = 0`; under the default `"auto"` this needle and gel get none either,
+/// steering length 31.2 mm): a horizon of 3 mm closes part of that gap by itself (deep mean
+/// 0.199 mm with the tangent alone, 0.170 mm with the look-ahead).
 #[test]
 #[ignore = "two full insertions (release, ~3 s): run with --include-ignored"]
 fn a_tip_beside_a_bent_path_cuts_back_towards_it() {
@@ -164,26 +165,35 @@ fn a_tip_beside_a_bent_path_cuts_back_towards_it() {
     assert!(max < 0.3, "max {max} mm");
 }
 
-/// `inverse.qp_horizon = 3` mm (an option, off by default): the tip's stage works on the
-/// error predicted along the tip's heading, so a tip that runs ahead inside a bend, its heading
-/// already closing the error, keeps turning with the path. With the error now (`qp_horizon = 0`)
-/// the public `needle_thin` spent its heading to erase a 0.3 mm lead inside its bend (step 306:
-/// the tip's slope −0.168 against the path's −0.196; step 342: −0.003 against −0.18), never
-/// turned fast enough again and stopped blocked at its obstacle's margin 18.7 mm from its
-/// target; with the horizon it ends 3.5 mm from it (`needle run
-/// scenes/suite/needle_thin.toml --json [--set inverse.qp_horizon=0]`).
+/// `inverse.qp_horizon = "auto"` (the default) gives the public `needle_thin` (Ø 0.52 mm in
+/// 25 kPa, steering length 13.0 mm) a horizon of 3 mm: the tip's stage works on the error
+/// predicted along the tip's heading, so a tip that runs ahead inside a bend, its heading already
+/// closing the error, keeps turning with the path. With the error now (`qp_horizon = 0`) it
+/// spent its heading to erase a 0.3 mm lead inside its bend (step 306: the tip's slope −0.168
+/// against the path's −0.196; step 342: −0.003 against −0.18), never turned fast enough again
+/// and stopped blocked at its obstacle's margin 18.7 mm from its target; with the horizon it
+/// ends 3.5 mm from it (`needle run scenes/suite/needle_thin.toml --json [--set
+/// inverse.qp_horizon=0]`).
 #[test]
 #[ignore = "two full insertions (release, ~3 s): run with --include-ignored"]
 fn a_lead_inside_the_bend_is_not_spent_on_the_heading() {
-    let end = |horizon: &str| {
+    let end = |horizon: Option<&str>| {
+        let overrides: Vec<(String, String)> = (horizon.iter())
+            .map(|h| ("inverse.qp_horizon".to_string(), h.to_string()))
+            .collect();
         let scene = suite_scene("needle_thin")
-            .with_overrides(&[("inverse.qp_horizon".into(), horizon.into())])
+            .with_overrides(&overrides)
             .expect("override");
         run(&scene, &RunOptions::default(), |_| {})
             .expect("the run starts")
             .summary
     };
-    let (now, ahead) = (end("0.0"), end("3.0"));
+    let (now, ahead) = (end(Some("0.0")), end(None));
+    assert_eq!(
+        ahead.qp_horizon_mm, 3.0,
+        "the default's horizon for this needle"
+    );
+    assert_eq!(now.qp_horizon_mm, 0.0);
     eprintln!(
         "error now: e_final {:.3} mm, {:?}; predicted 3 mm along the heading: e_final {:.3} mm, {:?}",
         now.e_final_mm, now.outcome, ahead.e_final_mm, ahead.outcome

@@ -146,11 +146,11 @@ pub struct InverseParams {
     /// already closing is then not corrected a second time by turning the heading away from
     /// the path, which the needle cannot turn back in time (public `needle_thin`: 0.3 mm inside
     /// its bend at step 306, the heading straightened to erase that lead, then 0.19 behind the
-    /// path's slope for good). Measured at `S` = 3 (`docs/benchmark.md`): on 1500-node gels 224
-    /// instead of 218 of 249 suite runs reached and 90 instead of 86 of 96 on four new sets, but
-    /// `complex` tracked 0.094 → 0.253 mm, the 5040-node public suite lost a target, and the
-    /// gel pipeline's open-loop agreement with the exact step fell from 33 to 29 of 33 scenes
-    /// within 0.05 mm: left off.
+    /// path's slope for good). Where the joints still turn the tip freely, the error now tracks
+    /// the path more closely (`complex`: 0.094 mm e_mean at `S` = 0, 0.253 mm at 3), so the host
+    /// sets `S` from the needle's steering length in the gel (`inverse.qp_horizon = "auto"`: 3 mm
+    /// for a steering length up to 18 mm, none from 21 mm; `docs/benchmark.md`). The core's own
+    /// default is 0.
     pub qp_horizon: f64,
     /// Re-plan a [`StepMethod::Qp`] step that its confirming solve rejected (default false):
     /// the solve at the rejected joints gives the constrained map's actual change along the

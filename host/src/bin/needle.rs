@@ -357,8 +357,8 @@ fn print_summary(s: &RunSummary, json: bool) -> ExitCode {
 
 fn print_text(s: &RunSummary) {
     println!(
-        "scene {} · controller {:?} · {} gel nodes · needle steering length {:.1} mm",
-        s.scene, s.controller, s.gel_nodes, s.steering_length_mm
+        "scene {} · controller {:?} · {} gel nodes · needle steering length {:.1} mm · tip horizon {:.1} mm",
+        s.scene, s.controller, s.gel_nodes, s.steering_length_mm, s.qp_horizon_mm
     );
     if let Some(m) = &s.support_motion {
         println!("support motion: {m}");

@@ -85,6 +85,10 @@ pub struct RunSummary {
     /// ([`crate::setup::steering_length`]) [mm]: short (under about 17 mm), and the gel holds
     /// the shaft so that the joints barely steer the tip deep inside.
     pub steering_length_mm: f64,
+    /// The horizon of the `"qp"` update's tip objective [mm]: `inverse.qp_horizon`, resolved
+    /// from the steering length under `"auto"` ([`crate::scene::HorizonSpec::horizon`]; 3 mm
+    /// up to 18 mm of steering length, none from 21 mm). The paper's update does not use it.
+    pub qp_horizon_mm: f64,
     /// The build, machine and date that made this run.
     pub provenance: crate::provenance::Provenance,
     /// Steps run (a whole insertion may add settling steps after the planned ones: the target
@@ -375,6 +379,7 @@ impl Statistics {
             gel_nodes: world.gel.node_count(),
             support_motion: plan.support_motion.clone(),
             steering_length_mm: plan.steering_length_mm,
+            qp_horizon_mm: plan.qp_horizon_mm,
             provenance: crate::provenance::Provenance::now(),
             steps: reports.len(),
             steps_planned: end.steps_planned,

@@ -194,6 +194,16 @@ impl Scene {
         Ok(chain)
     }
 
+    /// The needle's steering length in the gel [mm] ([`crate::setup::steering_length`] of the
+    /// needle's diameter and modulus and the gel's modulus).
+    pub fn steering_length(&self) -> f64 {
+        crate::setup::steering_length(
+            self.needle.diameter,
+            self.needle.young_modulus,
+            self.gel.young_modulus,
+        )
+    }
+
     /// The inverse controller's tuning (the core's defaults for what a scene does not set).
     pub fn inverse_params(&self) -> InverseParams {
         let v = &self.inverse;
@@ -212,7 +222,7 @@ impl Scene {
             qp_angle_weight: v.qp_angle_weight,
             qp_heading: v.qp_heading,
             aim_ahead: v.aim_ahead,
-            qp_horizon: v.qp_horizon,
+            qp_horizon: v.qp_horizon.horizon(self.steering_length()),
             replan_rejected: v.replan_rejected,
             second_opinion: v.second_opinion,
             qp_angle_damping_max: v.qp_angle_damping_max,

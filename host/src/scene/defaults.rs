@@ -98,9 +98,6 @@ pub(super) fn default_qp_heading() -> bool {
 pub(super) fn default_aim_ahead() -> f64 {
     InverseParams::default().aim_ahead
 }
-pub(super) fn default_qp_horizon() -> f64 {
-    InverseParams::default().qp_horizon
-}
 pub(super) fn default_replan_rejected() -> bool {
     InverseParams::default().replan_rejected
 }

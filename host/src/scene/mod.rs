@@ -418,9 +418,10 @@ pub struct InverseSpec {
     /// Look-ahead of the tip's heading once inserted [mm] (0: the path's tangent alone).
     #[serde(default = "default_aim_ahead")]
     pub aim_ahead: f64,
-    /// Horizon of the tip's position objective once inserted [mm] (0: the error now).
-    #[serde(default = "default_qp_horizon")]
-    pub qp_horizon: f64,
+    /// Horizon of the tip's position objective once inserted: a distance [mm] (0: the error
+    /// now) or `"auto"` (the default: [`HorizonSpec::horizon`] of the scene's steering length).
+    #[serde(default)]
+    pub qp_horizon: HorizonSpec,
     /// Re-plan a `"qp"` step that its confirming solve rejected, with the Jacobian corrected by
     /// the secant along the rejected step (default false).
     #[serde(default = "default_replan_rejected")]
@@ -483,7 +484,7 @@ impl Default for InverseSpec {
             qp_angle_weight: default_qp_angle_weight(),
             qp_heading: default_qp_heading(),
             aim_ahead: default_aim_ahead(),
-            qp_horizon: default_qp_horizon(),
+            qp_horizon: HorizonSpec::Auto,
             replan_rejected: default_replan_rejected(),
             second_opinion: default_second_opinion(),
             qp_angle_damping_max: default_qp_angle_damping_max(),
@@ -681,6 +682,14 @@ impl NearRadiusSpec {
     }
 }
 
+/// A field that is a number or a word (`"auto"`, `"off"`), before its own type reads it.
+#[derive(Deserialize)]
+#[serde(untagged)]
+enum NumberOrWord {
+    Number(f64),
+    Word(String),
+}
+
 impl Serialize for NearRadiusSpec {
     fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
         match self {
@@ -693,22 +702,91 @@ impl Serialize for NearRadiusSpec {
 
 impl<'de> Deserialize<'de> for NearRadiusSpec {
     fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
-        #[derive(Deserialize)]
-        #[serde(untagged)]
-        enum Raw {
-            Number(f64),
-            Word(String),
-        }
         const EXPECTED: &str = "expected a distance [mm], \"auto\" or \"off\"";
-        match Raw::deserialize(d).map_err(|_| serde::de::Error::custom(EXPECTED))? {
-            Raw::Number(r) => Ok(Self::Radius(r)),
-            Raw::Word(w) => match w.as_str() {
+        match NumberOrWord::deserialize(d).map_err(|_| serde::de::Error::custom(EXPECTED))? {
+            NumberOrWord::Number(r) => Ok(Self::Radius(r)),
+            NumberOrWord::Word(w) => match w.as_str() {
                 "auto" => Ok(Self::Auto),
                 "off" => Ok(Self::Off),
                 other => Err(serde::de::Error::custom(format!(
                     "{EXPECTED}, got \"{other}\""
                 ))),
             },
+        }
+    }
+}
+
+/// The horizon of the `"qp"` update's tip objective (`inverse.qp_horizon`).
+#[derive(Clone, Copy, Debug, PartialEq, Default)]
+pub enum HorizonSpec {
+    /// From the needle's steering length in the gel ([`HorizonSpec::horizon`]).
+    #[default]
+    Auto,
+    /// This horizon [mm] whatever the needle and gel (0: the error now).
+    Mm(f64),
+}
+
+/// `inverse.qp_horizon = "auto"`: the horizon [mm] where the needle's steering length is at most
+/// [`HORIZON_AUTO_FULL_BELOW`].
+pub const HORIZON_AUTO_MM: f64 = 3.0;
+/// `"auto"`: steering lengths [mm] up to which the whole [`HORIZON_AUTO_MM`] applies.
+pub const HORIZON_AUTO_FULL_BELOW: f64 = 18.0;
+/// `"auto"`: steering lengths [mm] from which there is no horizon (linear in between).
+pub const HORIZON_AUTO_NONE_ABOVE: f64 = 21.0;
+
+impl HorizonSpec {
+    /// The horizon [mm] for a needle of steering length `steering_length` [mm]
+    /// ([`crate::setup::steering_length`]). `Auto`: [`HORIZON_AUTO_MM`] up to
+    /// [`HORIZON_AUTO_FULL_BELOW`], none from [`HORIZON_AUTO_NONE_ABOVE`], linear in between.
+    /// Where the gel holds the shaft (a short steering length) the tip goes where it points and its
+    /// heading cannot be turned back in time, so the tip's error is taken ahead along the heading;
+    /// where the joints still turn the tip freely, the error now tracks the path more closely
+    /// (`docs/benchmark.md`, "The horizon from the steering length").
+    ///
+    /// # Example
+    /// ```
+    /// use needle_host::scene::HorizonSpec;
+    ///
+    /// assert_eq!(HorizonSpec::Auto.horizon(13.0), 3.0); // a thin needle in a stiff gel
+    /// assert_eq!(HorizonSpec::Auto.horizon(26.5), 0.0); // the benchmark's needle and gel
+    /// assert!((HorizonSpec::Auto.horizon(19.5) - 1.5).abs() < 1e-12);
+    /// assert_eq!(HorizonSpec::Mm(2.0).horizon(26.5), 2.0);
+    /// ```
+    pub fn horizon(self, steering_length: f64) -> f64 {
+        match self {
+            Self::Mm(s) => s,
+            Self::Auto => {
+                let (lo, hi) = (HORIZON_AUTO_FULL_BELOW, HORIZON_AUTO_NONE_ABOVE);
+                let t = ((hi - steering_length) / (hi - lo)).clamp(0.0, 1.0);
+                // A non-finite length (a zero gel modulus is refused earlier) gets none.
+                if t.is_finite() {
+                    HORIZON_AUTO_MM * t
+                } else {
+                    0.0
+                }
+            }
+        }
+    }
+}
+
+impl Serialize for HorizonSpec {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        match self {
+            Self::Auto => s.serialize_str("auto"),
+            Self::Mm(r) => s.serialize_f64(*r),
+        }
+    }
+}
+
+impl<'de> Deserialize<'de> for HorizonSpec {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        const EXPECTED: &str = "expected a horizon [mm] or \"auto\"";
+        match NumberOrWord::deserialize(d).map_err(|_| serde::de::Error::custom(EXPECTED))? {
+            NumberOrWord::Number(r) => Ok(Self::Mm(r)),
+            NumberOrWord::Word(w) if w == "auto" => Ok(Self::Auto),
+            NumberOrWord::Word(w) => {
+                Err(serde::de::Error::custom(format!("{EXPECTED}, got \"{w}\"")))
+            }
         }
     }
 }

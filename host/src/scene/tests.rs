@@ -537,3 +537,50 @@ fn gs_relaxation_defaults_to_the_cores_and_reaches_its_solves() {
         assert_eq!(e.field, "solver.gs_relaxation", "{bad}");
     }
 }
+
+/// `inverse.qp_horizon`: `"auto"` by default, resolved from the needle's steering length (the
+/// benchmark's needle in its gel: none; a thin needle in a stiff gel: the whole 3 mm); a number
+/// is taken as given; a negative one or another word is refused naming the field.
+#[test]
+fn qp_horizon_is_auto_by_default_and_follows_the_steering_length() {
+    let complex = Scene::builtin("complex").unwrap();
+    assert_eq!(complex.inverse.qp_horizon, HorizonSpec::Auto, "the default");
+    assert!((complex.steering_length() - 26.5).abs() < 0.05);
+    assert_eq!(
+        complex.inverse_params().qp_horizon,
+        0.0,
+        "long ℓ: the error now"
+    );
+    let set = |o: &[(&str, &str)]| {
+        let o: Vec<(String, String)> = (o.iter())
+            .map(|(a, b)| (a.to_string(), b.to_string()))
+            .collect();
+        complex.with_overrides(&o)
+    };
+    // Ø 0.52 mm steel in 25 kPa (the public `needle_thin`): ℓ = 13.0 mm.
+    let thin = set(&[("needle.diameter", "0.52"), ("gel.young_modulus", "0.025")]).unwrap();
+    assert!(
+        (thin.steering_length() - 13.0).abs() < 0.05,
+        "{}",
+        thin.steering_length()
+    );
+    assert_eq!(thin.inverse_params().qp_horizon, HORIZON_AUTO_MM);
+    // Between the two ends, linear.
+    let mid = HorizonSpec::Auto.horizon(0.5 * (HORIZON_AUTO_FULL_BELOW + HORIZON_AUTO_NONE_ABOVE));
+    assert!((mid - 0.5 * HORIZON_AUTO_MM).abs() < 1e-12, "{mid}");
+    assert_eq!(HorizonSpec::Auto.horizon(f64::NAN), 0.0);
+    let fixed = set(&[("inverse.qp_horizon", "2.5")]).unwrap();
+    assert_eq!(fixed.inverse.qp_horizon, HorizonSpec::Mm(2.5));
+    assert_eq!(
+        fixed.inverse_params().qp_horizon,
+        2.5,
+        "whatever the needle"
+    );
+    let auto = set(&[("inverse.qp_horizon", "\"auto\"")]).unwrap();
+    assert_eq!(auto.inverse.qp_horizon, HorizonSpec::Auto);
+    let e = set(&[("inverse.qp_horizon", "-1")]).unwrap_err();
+    assert_eq!(e.field, "inverse.qp_horizon");
+    let e = set(&[("inverse.qp_horizon", "\"far\"")]).unwrap_err();
+    assert!(e.to_string().contains("\"auto\""), "{e}");
+    assert!(e.to_string().contains("qp_horizon"), "{e}");
+}

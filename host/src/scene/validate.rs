@@ -3,7 +3,7 @@
 //! insertion), each value against its physical meaning and a range where a number far outside
 //! it can only be a typo or an attack (a needle of 10³⁰⁰ MPa, a time step of 10⁻³⁰⁰ s).
 
-use super::{FAR_RESIDUAL_MAX, NearRadiusSpec, PoseSpec, SampledPath, Scene};
+use super::{FAR_RESIDUAL_MAX, HorizonSpec, NearRadiusSpec, PoseSpec, SampledPath, Scene};
 use crate::free_motion::LAG_ROTATION_LIMIT;
 use needle_core::kinematics::{Kinematics, Robot};
 
@@ -425,6 +425,9 @@ impl Scene {
         positive("inverse.max_base_step", v.max_base_step, "[mm]")?;
         non_negative("inverse.clearance_margin", v.clearance_margin, "[mm]")?;
         non_negative("inverse.qp_angle_weight", v.qp_angle_weight, "[mm/rad]")?;
+        if let HorizonSpec::Mm(h) = v.qp_horizon {
+            non_negative("inverse.qp_horizon", h, "[mm]")?;
+        }
         non_negative(
             "inverse.qp_angle_damping_max",
             v.qp_angle_damping_max,

@@ -273,7 +273,7 @@ fn worst_of(rows: &[&SuiteRow]) -> Vec<String> {
     ]
 }
 
-const HEADER: [&str; 16] = [
+const HEADER: [&str; 17] = [
     "scene",
     "controller",
     "outcome",
@@ -290,6 +290,7 @@ const HEADER: [&str; 16] = [
     "cpu_ms_per_step",
     "wall_ms_per_step",
     "steering_length_mm",
+    "qp_horizon_mm",
 ];
 
 /// The cells of one row, in [`HEADER`]'s order.
@@ -316,6 +317,7 @@ fn cells(r: &SuiteRow) -> Vec<String> {
         cell(s.cpu_ms_per_step, 2),
         cell(s.timing.total.mean_ms, 2),
         cell(s.steering_length_mm, 1),
+        cell(s.qp_horizon_mm, 1),
     ]
 }
 
