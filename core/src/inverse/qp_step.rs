@@ -18,8 +18,8 @@
 //! inserted, predicted `S` further along, `e + S (t̂ − ĥ)`: the target along the path's tangent,
 //! the tip along its heading; `J_e` its derivative, from the same differences), `φ1`, `φ2` the
 //! rotation vectors whose norms are the paper's angles θ1 (tip direction to the path's tangent)
-//! and θ2 (needle base to the entry point), `k` the paper's blend, `h` = 1 ([`super::InverseParams::qp_heading`], the default) or `k` (the
-//! paper's blend), `w` [`super::InverseParams::qp_angle_weight`]; `J_e`, `Φ1`, `Φ2` and
+//! and θ2 (needle base to the entry point), `k` the paper's blend, `h` = 1
+//! ([`super::InverseParams::qp_heading`], the default) or `k` (the paper's blend), `w` [`super::InverseParams::qp_angle_weight`]; `J_e`, `Φ1`, `Φ2` and
 //! `G_k = ∂d_k/∂q` from the same finite-difference columns as the paper's `J`; `ε` as in the
 //! paper's update (raised near a singularity; in stage 2's `ε² |y|²` by at most
 //! [`super::InverseParams::qp_angle_damping_max`]). `P` projects on the (damped) null space of `J_e`,
