@@ -112,7 +112,55 @@ pub struct Controller<const M: usize, const N: usize = 6> {
     sens: Sensitivity<M, N>,
     /// The last step, when it held the joints ([`InverseParams::resume_held`]).
     held: Held<N>,
+    /// What the model missed of the clearances of late ([`InverseParams::settling_margin`]).
+    settling: Settling,
 }
+
+/// Per step, the fraction of the settling allowance kept for the next
+/// ([`InverseParams::settling_margin`]): a shortfall is forgotten by a tenth per step (to a
+/// third in about ten steps, 0.4 s at the benchmark's period).
+pub const SETTLING_DECAY: f64 = 0.9;
+
+/// The smallest obstacle clearance the last step's final solve predicted, and the allowance
+/// added to the margin: the largest recent shortfall of a frame's clearance against the
+/// prediction for it, decayed by [`SETTLING_DECAY`] per step.
+#[derive(Clone, Copy, Debug)]
+struct Settling {
+    /// The last step's predicted smallest clearance [mm]; meaningful when `known`.
+    predicted: f64,
+    /// Whether `predicted` belongs to the last step (false: no prediction, e.g. no obstacle
+    /// row or a step within tolerance).
+    known: bool,
+    /// Added to `clearance_margin` [mm], ≥ 0.
+    allowance: f64,
+}
+
+impl Settling {
+    const NONE: Self = Self {
+        predicted: 0.0,
+        known: false,
+        allowance: 0.0,
+    };
+
+    /// Takes the frame's smallest clearance `now` (`None`: no obstacle row) into the
+    /// allowance.
+    fn observe(&mut self, now: Option<f64>) {
+        let shortfall = match (self.known, now) {
+            (true, Some(c)) if c.is_finite() && self.predicted.is_finite() => {
+                (self.predicted - c).max(0.0)
+            }
+            _ => 0.0,
+        };
+        self.allowance = (self.allowance * SETTLING_DECAY).max(shortfall);
+        self.known = false;
+    }
+}
+
+crate::zeroed::impl_zeroable!(Settling {
+    predicted,
+    known,
+    allowance
+});
 
 /// A step that held the joints because its confirming solves rejected every candidate: where,
 /// and how far its halvings of the first stage's step went, so that the next step on the same
@@ -189,6 +237,7 @@ crate::zeroed::impl_zeroable!(Controller<const M, const N> {
     start_product_ok,
     sens,
     held,
+    settling,
 });
 
 impl<const M: usize, const N: usize> Controller<M, N> {
@@ -218,6 +267,7 @@ impl<const M: usize, const N: usize> Controller<M, N> {
             start_product_ok: false,
             sens: Sensitivity::new(),
             held: Held::NONE,
+            settling: Settling::NONE,
         }
     }
 
@@ -275,5 +325,6 @@ impl<const M: usize, const N: usize> Controller<M, N> {
         self.lambda.prev_rows = 0;
         self.sens.clear();
         self.held = Held::NONE;
+        self.settling = Settling::NONE;
     }
 }

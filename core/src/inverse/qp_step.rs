@@ -373,7 +373,7 @@ impl<const M: usize, const N: usize> Controller<M, N> {
         ranges.trust = (start, qp.rows());
         let start = qp.rows();
         for k in 0..clear.count {
-            let need = p.clearance_margin - clear.value[k];
+            let need = self.margin() - clear.value[k];
             let b = if relaxed { need.min(0.0) } else { need };
             stage.row(qp, &clear.gradient[k], b)?;
         }

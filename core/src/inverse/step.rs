@@ -107,11 +107,14 @@ impl<const M: usize, const N: usize> Controller<M, N> {
         let (obj0, base_rep) = self.base_solve(frame, &mut report);
         let (q_new, final_rep) = if Vector4::from(obj0.t).norm_squared() <= self.params.tolerance {
             self.hold(m, &obj0, &mut report);
+            self.settling.observe(None);
             (frame.q, base_rep)
         } else {
             let (jac, clear) = self.jacobian(frame, &obj0, &mut report);
+            self.settling
+                .observe((0..clear.count).map(|k| clear.value[k]).reduce(f64::min));
             let (q_new, dq1) = self.newton_step(frame, &jac, &clear, &obj0, &mut report);
-            self.accept_step(
+            let kept = self.accept_step(
                 frame,
                 &jac,
                 &clear,
@@ -119,9 +122,29 @@ impl<const M: usize, const N: usize> Controller<M, N> {
                 (q_new, dq1, resume),
                 base_rep,
                 &mut report,
-            )
+            );
+            // The smallest clearance the answer's λ predicts, for the next frame's comparison.
+            if let Some(c) = (0..clear.count)
+                .map(|k| frame.clearance(k, &self.lambda.work))
+                .reduce(f64::min)
+            {
+                self.settling.predicted = c;
+                self.settling.known = true;
+            }
+            kept
         };
         self.answer(frame, &q_new, &final_rep, report, cmd)
+    }
+
+    /// The obstacle margin of this step: `clearance_margin`, widened by the settling allowance
+    /// with [`super::InverseParams::settling_margin`].
+    pub(super) fn margin(&self) -> f64 {
+        let p = &self.params;
+        if p.settling_margin && p.method == super::StepMethod::Qp {
+            p.clearance_margin + self.settling.allowance
+        } else {
+            p.clearance_margin
+        }
     }
 
     /// Stage 1: validates the parameters and the frame, factors the diagonal blocks (of the
@@ -614,7 +637,7 @@ impl<const M: usize, const N: usize> Controller<M, N> {
             || e_after <= self.params.tolerance;
         let clear_ok = (0..clear.count).all(|k| {
             let after = frame.clearance(k, &self.lambda.work);
-            after >= self.params.clearance_margin.min(clear.value[k])
+            after >= self.margin().min(clear.value[k])
         });
         (decrease && clear_ok).then_some((q_try, rep))
     }

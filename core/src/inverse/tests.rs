@@ -7,14 +7,27 @@ use crate::payload::{Command, ComplianceFrame};
 use crate::synthetic::{rigid_needle_frame, rv1a_on_turntable};
 use nalgebra::Vector4;
 
-#[test]
-fn rigid_needle_newton_converges() {
+/// The RV-1A with a rigid 120 mm needle at joints `Q_FREE`, its target where the tip is at
+/// `[0.2, 0.35, 2.0, 0.1, 0.6, -0.2]`: the frame and a command buffer.
+fn rigid_needle_off_target() -> (
+    DhChain<6>,
+    alloc::boxed::Box<ComplianceFrame<12>>,
+    alloc::boxed::Box<Command<12>>,
+) {
     let chain = DhChain::rv1a();
     let mut frame = ComplianceFrame::<12>::new_boxed();
-    let mut cmd = Command::<12>::new_boxed();
     let q_target = [0.2, 0.35, 2.0, 0.1, 0.6, -0.2];
-    let q_free = [0.25, 0.3, 2.05, 0.05, 0.55, -0.25];
-    rigid_needle_frame(&mut frame, &chain, &q_free, &q_target, 120.0);
+    rigid_needle_frame(&mut frame, &chain, &Q_FREE, &q_target, 120.0);
+    (chain, frame, Command::<12>::new_boxed())
+}
+
+/// The joints of [`rigid_needle_off_target`]'s frame.
+const Q_FREE: [f64; 6] = [0.25, 0.3, 2.05, 0.05, 0.55, -0.25];
+
+#[test]
+fn rigid_needle_newton_converges() {
+    let (chain, mut frame, mut cmd) = rigid_needle_off_target();
+    let q_free = Q_FREE;
     let mut ctrl = Controller::<12>::new_boxed(chain, InverseParams::default());
     let mut q = q_free;
     let mut last = f64::INFINITY;
@@ -87,12 +100,104 @@ fn tip_motion(rep: &crate::payload::SolverReport) -> nalgebra::Vector3<f64> {
 
 /// An obstacle across the tip's way: a clearance row that falls as the tip moves the way the
 /// paper's update takes it, set so that this update ends half its step inside the margin. The
+/// Gives `frame` one obstacle clearance row across the direction `u`: `d(λ) = d_free − u ·
+/// (C_tip λ)`, worth `d0` at the frame's joints, where the tip is `target − e` (`rep`: a step
+/// on the frame without the row).
+fn add_clearance_across(
+    frame: &mut ComplianceFrame<12>,
+    rep: &crate::payload::SolverReport,
+    u: &nalgebra::Vector3<f64>,
+    d0: f64,
+) {
+    use crate::payload::ObsIndex;
+    let tip0: nalgebra::Vector3<f64> = nalgebra::Vector3::from_fn(|r, _| {
+        frame.o_free[ObsIndex::TARGET_POINT + r] - rep.objective[r]
+    });
+    let free_tip: nalgebra::Vector3<f64> =
+        nalgebra::Vector3::from_fn(|r, _| frame.o_free[ObsIndex::TIP_POSITION + r]);
+    frame.clearance_count = 1;
+    frame.clearance_free[0] = d0 + u.dot(&(tip0 - free_tip));
+    for j in 0..frame.rows() {
+        frame.clearance_c[0][j] = -(0..3)
+            .map(|r| u[r] * frame.c[ObsIndex::TIP_POSITION + r][j])
+            .sum::<f64>();
+    }
+    frame.validate().expect("a valid frame with a clearance");
+}
+
+/// With `settling_margin`, a frame whose clearance comes short of what the last step predicted
+/// for it widens the margin by that shortfall: the next step keeps the needle that much further
+/// from the obstacle than the same step without the rule;
+/// the first step (nothing predicted yet) is the step without the rule, and the allowance
+/// decays by `SETTLING_DECAY` over a step whose frame met its prediction.
+#[test]
+fn a_clearance_short_of_its_prediction_widens_the_next_margin() {
+    let (chain, mut frame, mut cmd) = rigid_needle_off_target();
+    let off = InverseParams::default();
+    let on = InverseParams {
+        settling_margin: true,
+        ..off
+    };
+    let rep = Controller::<12>::new_boxed(chain, off)
+        .step(&frame, &mut cmd)
+        .expect("valid");
+    let motion = tip_motion(&rep);
+    let (u, travel) = (motion.normalize(), motion.norm());
+    let margin = off.clearance_margin;
+    let d0 = margin + 0.5 * travel;
+    add_clearance_across(&mut frame, &rep, &u, d0);
+
+    let mut ctrl = Controller::<12>::new_boxed(chain, on);
+    ctrl.step(&frame, &mut cmd).expect("valid");
+    let q_first = cmd.q;
+    let predicted = frame.clearance(0, &cmd.lambda);
+    let mut cmd_off = Command::<12>::new_boxed();
+    Controller::<12>::new_boxed(chain, off)
+        .step(&frame, &mut cmd_off)
+        .expect("valid");
+    assert_eq!(
+        q_first, cmd_off.q,
+        "the first step is the step without the rule"
+    );
+    assert!((predicted - margin).abs() < 0.02 * travel, "{predicted} mm");
+
+    // The next frame (the same joints) comes with its clearance `shortfall` below the
+    // prediction: the gel settled towards the obstacle.
+    let shortfall = 0.1;
+    frame.clearance_free[0] -= d0 - (predicted - shortfall);
+    ctrl.step(&frame, &mut cmd).expect("valid");
+    let widened = frame.clearance(0, &cmd.lambda);
+    Controller::<12>::new_boxed(chain, off)
+        .step(&frame, &mut cmd_off)
+        .expect("valid");
+    let plain = frame.clearance(0, &cmd_off.lambda);
+    std::println!("clearance planned: {plain:.4} mm without, {widened:.4} mm with the rule");
+    // The clearance row binds in both (the same frame, the same linear model), one at the
+    // margin, the other at the margin plus the shortfall.
+    assert!(
+        (widened - plain - shortfall).abs() < 0.02 * travel,
+        "{widened} − {plain} mm against {shortfall}"
+    );
+    assert!((ctrl.margin() - (margin + shortfall)).abs() < 1e-9);
+
+    // A frame that meets the prediction: the allowance decays.
+    let now = frame.clearance(0, &cmd.lambda);
+    frame.clearance_free[0] += now - (predicted - shortfall);
+    ctrl.step(&frame, &mut cmd).expect("valid");
+    let expected = margin + shortfall * super::SETTLING_DECAY;
+    assert!(
+        (ctrl.margin() - expected).abs() < 1e-6,
+        "{} mm",
+        ctrl.margin()
+    );
+}
+
 /// QP update keeps the clearance at the margin (to first order: the rows are exact in `λ`, `λ`
 /// is nonlinear in `q` only through the robot's kinematics) and says so in its flags; the
 /// paper's update, blind to obstacles, crosses it.
 #[test]
 fn qp_step_keeps_a_clearance_the_paper_step_crosses() {
-    use crate::payload::{ObsIndex, StatusFlags};
+    use crate::payload::StatusFlags;
     let chain = DhChain::rv1a();
     let mut frame = ComplianceFrame::<12>::new_boxed();
     let mut cmd = Command::<12>::new_boxed();
@@ -109,23 +214,8 @@ fn qp_step_keeps_a_clearance_the_paper_step_crosses() {
     let motion = tip_motion(&rep);
     let (u, travel) = (motion.normalize(), motion.norm());
     assert!(travel > 1.0, "a real step: {travel} mm");
-    // d(λ) = d_free − u · (C_tip λ); at the frame's joints the tip is target − e.
     let margin = InverseParams::default().clearance_margin;
-    let m = frame.rows();
-    let tip0: nalgebra::Vector3<f64> = nalgebra::Vector3::from_fn(|r, _| {
-        frame.o_free[ObsIndex::TARGET_POINT + r] - rep.objective[r]
-    });
-    let free_tip: nalgebra::Vector3<f64> =
-        nalgebra::Vector3::from_fn(|r, _| frame.o_free[ObsIndex::TIP_POSITION + r]);
-    let d0 = margin + 0.5 * travel;
-    frame.clearance_count = 1;
-    frame.clearance_free[0] = d0 + u.dot(&(tip0 - free_tip));
-    for j in 0..m {
-        frame.clearance_c[0][j] = -(0..3)
-            .map(|r| u[r] * frame.c[ObsIndex::TIP_POSITION + r][j])
-            .sum::<f64>();
-    }
-    frame.validate().expect("a valid frame with a clearance");
+    add_clearance_across(&mut frame, &rep, &u, margin + 0.5 * travel);
 
     let rep = Controller::<12>::new_boxed(chain, paper)
         .step(&frame, &mut cmd)

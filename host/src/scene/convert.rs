@@ -228,6 +228,7 @@ impl Scene {
             qp_angle_damping_max: v.qp_angle_damping_max,
             resume_held: v.resume_held,
             limit_avoidance: v.limit_avoidance,
+            settling_margin: v.settling_margin,
             jacobian: match v.jacobian {
                 super::JacobianSpec::Solve => JacobianMode::Solve,
                 super::JacobianSpec::Linearized => JacobianMode::Linearized,

@@ -112,6 +112,9 @@ pub(super) fn default_qp_angle_damping_max() -> f64 {
 pub(super) fn default_resume_held() -> bool {
     InverseParams::default().resume_held
 }
+pub(super) fn default_settling_margin() -> bool {
+    InverseParams::default().settling_margin
+}
 pub(super) fn default_limit_avoidance() -> f64 {
     InverseParams::default().limit_avoidance
 }

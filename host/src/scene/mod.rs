@@ -445,6 +445,10 @@ pub struct InverseSpec {
     /// on 6-joint arms) [-].
     #[serde(default = "default_limit_avoidance")]
     pub limit_avoidance: f64,
+    /// Widen a `"qp"` step's obstacle margin by the recent shortfall of the frames' clearances
+    /// against the steps' predictions (the gel settling, the needle ringing at held joints).
+    #[serde(default = "default_settling_margin")]
+    pub settling_margin: bool,
 }
 
 /// How the inverse controller chooses the joint update.
@@ -490,6 +494,7 @@ impl Default for InverseSpec {
             qp_angle_damping_max: default_qp_angle_damping_max(),
             resume_held: default_resume_held(),
             limit_avoidance: default_limit_avoidance(),
+            settling_margin: default_settling_margin(),
         }
     }
 }
