@@ -52,6 +52,9 @@ pub struct Plan {
     /// The horizon of the `"qp"` update's tip objective, `inverse.qp_horizon` resolved
     /// ([`crate::scene::HorizonSpec::horizon`] of the steering length under `"auto"`) [mm].
     pub qp_horizon_mm: f64,
+    /// What the plan allows but makes unlikely to succeed
+    /// ([`crate::plan_check::advisories`]); empty when nothing is.
+    pub advisories: Vec<String>,
 }
 
 /// The length over which a needle bends as a beam on an elastic foundation, the gel:
@@ -206,6 +209,10 @@ impl<const N: usize> Setup<N> {
         };
         let mut plan = plan(scene);
         plan.support_motion = (world.support_motion.as_ref()).map(|m| m.summary(model.is_some()));
+        plan.advisories = crate::plan_check::advisories(scene, &world);
+        for a in &plan.advisories {
+            tracing::warn!("scene `{}`: {a}", scene.name);
+        }
         tracing::info!(
             "scene `{}` set up in {:.2} s: {} gel nodes, needle of {} beams",
             scene.name,
@@ -474,6 +481,7 @@ fn plan(scene: &Scene) -> Plan {
         insert_only: scene.insertion.mode == crate::scene::InsertionMode::Insert,
         steering_length_mm: scene.steering_length(),
         qp_horizon_mm: scene.inverse_params().qp_horizon,
+        advisories: Vec::new(),
     }
 }
 

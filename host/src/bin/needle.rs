@@ -360,6 +360,9 @@ fn print_text(s: &RunSummary) {
         "scene {} · controller {:?} · {} gel nodes · needle steering length {:.1} mm · tip horizon {:.1} mm",
         s.scene, s.controller, s.gel_nodes, s.steering_length_mm, s.qp_horizon_mm
     );
+    for a in &s.advisories {
+        println!("advisory: {a}");
+    }
     if let Some(m) = &s.support_motion {
         println!("support motion: {m}");
     }

@@ -89,6 +89,10 @@ pub struct RunSummary {
     /// from the steering length under `"auto"` ([`crate::scene::HorizonSpec::horizon`]; 3 mm
     /// up to 18 mm of steering length, none from 21 mm). The paper's update does not use it.
     pub qp_horizon_mm: f64,
+    /// What the plan allows but makes unlikely to succeed, one sentence each
+    /// ([`crate::plan_check::advisories`]: today a bending path for a needle whose steering
+    /// length is under 18 mm); empty when nothing is. Said at the start, before any step.
+    pub advisories: Vec<String>,
     /// The build, machine and date that made this run.
     pub provenance: crate::provenance::Provenance,
     /// Steps run (a whole insertion may add settling steps after the planned ones: the target
@@ -380,6 +384,7 @@ impl Statistics {
             support_motion: plan.support_motion.clone(),
             steering_length_mm: plan.steering_length_mm,
             qp_horizon_mm: plan.qp_horizon_mm,
+            advisories: plan.advisories.clone(),
             provenance: crate::provenance::Provenance::now(),
             steps: reports.len(),
             steps_planned: end.steps_planned,
