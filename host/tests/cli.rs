@@ -156,6 +156,11 @@ fn suite_runs_every_scene_of_a_folder_and_records_one_that_cannot_run() {
     std::fs::create_dir_all(&scenes).expect("folder");
     let simple = concat!(env!("CARGO_MANIFEST_DIR"), "/../scenes/simple.toml");
     std::fs::copy(simple, scenes.join("a_simple.toml")).expect("copy");
+    let thin = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../scenes/suite/needle_thin.toml"
+    );
+    std::fs::copy(thin, scenes.join("c_thin.toml")).expect("copy");
     std::fs::write(scenes.join("b_broken.toml"), "name = \"broken\"\n[gel\n").expect("write");
     std::fs::write(scenes.join("notes.txt"), "not a scene").expect("write");
     let o = needle()
@@ -171,8 +176,8 @@ fn suite_runs_every_scene_of_a_folder_and_records_one_that_cannot_run() {
     // A scene that cannot run: exit 1, and the others still ran.
     assert_eq!(o.status.code(), Some(1), "{out}\n{}", stderr(&o));
     // Each scene under both controllers, side by side.
-    assert!(out.contains("default: scenes run: 1 of 2"), "{out}");
-    assert!(out.contains("paper: scenes run: 1 of 2"), "{out}");
+    assert!(out.contains("default: scenes run: 2 of 3"), "{out}");
+    assert!(out.contains("paper: scenes run: 2 of 3"), "{out}");
     let md = std::fs::read_to_string(dir.join("out/suite.md")).expect("suite.md");
     assert!(
         md.contains("| a_simple | default | missed_target |"),
@@ -180,8 +185,17 @@ fn suite_runs_every_scene_of_a_folder_and_records_one_that_cannot_run() {
     );
     assert!(md.contains("| a_simple | paper | missed_target |"), "{md}");
     assert!(md.contains("`b_broken` (default) failed:"), "{md}");
+    // The thin needle's plan advisory, under each controller; none for the benchmark's needle.
+    assert!(
+        md.contains(
+            "`c_thin` (default) advisory: the needle's steering length in this gel is 13.0 mm"
+        ),
+        "{md}"
+    );
+    assert!(md.contains("`c_thin` (paper) advisory:"), "{md}");
+    assert!(!md.contains("`a_simple` (default) advisory"), "{md}");
     let csv = std::fs::read_to_string(dir.join("out/suite.csv")).expect("suite.csv");
-    assert_eq!(csv.lines().count(), 5, "{csv}");
+    assert_eq!(csv.lines().count(), 7, "{csv}");
     let json: serde_json::Value = serde_json::from_str(
         &std::fs::read_to_string(dir.join("out/suite.json")).expect("suite.json"),
     )

@@ -358,6 +358,9 @@ pub fn markdown(rows: &[SuiteRow], overrides: &[(String, String)]) -> String {
         if let Some(why) = r.summary.as_ref().and_then(|s| s.stopped.as_ref()) {
             let _ = writeln!(md, "- `{}` ({}) stopped: {why}", r.scene, r.controller);
         }
+        for a in r.summary.iter().flat_map(|s| &s.advisories) {
+            let _ = writeln!(md, "- `{}` ({}) advisory: {a}", r.scene, r.controller);
+        }
     }
     md
 }
