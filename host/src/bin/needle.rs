@@ -404,6 +404,12 @@ fn print_text(s: &RunSummary) {
         mm3(s.path_deviation_mean_mm),
         mm3(s.path_deviation_max_mm),
     );
+    if s.puncture_step.is_some() {
+        println!(
+            "tissue moved by the insertion (largest, the support's motion taken out): the target {:.3} mm, the entry point {:.3} mm",
+            s.target_shift_max_mm, s.entry_shift_max_mm
+        );
+    }
     if s.withdrawals > 0 {
         println!(
             "the needle left the gel {} time(s) after puncturing it (on an insertion, not a \

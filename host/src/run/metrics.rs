@@ -106,6 +106,17 @@ pub fn distance_to_polyline(points: &[Vector3<f64>], p: &Vector3<f64>) -> f64 {
         .fold(f64::INFINITY, f64::min)
 }
 
+/// How far the tissue has moved under the needle, the support's motion taken out [mm]: the
+/// path's end point (the target, embedded in the gel at rest) and the entry point (the
+/// material point the needle punctured) against their rest positions; 0 for a target outside
+/// the gel. Both 0 in a gel at rest.
+pub fn tissue_shift<const N: usize>(world: &World<N>, target: Option<&Embedded>) -> (f64, f64) {
+    let (rest, tets) = (&world.gel.mesh().nodes, &world.gel.mesh().tets);
+    let shift =
+        |e: &Embedded| (world.gel_point(e) - e.position(rest, tets) - world.support_offset).norm();
+    (target.map_or(0.0, shift), shift(&world.entry))
+}
+
 /// Path metrics gathered step by step.
 #[derive(Clone, Debug)]
 pub struct PathMetrics {
@@ -120,6 +131,14 @@ pub struct PathMetrics {
     pub steps_to_target: Option<usize>,
     /// Distance from the tip to the path's end point after the last step [mm].
     pub e_end: f64,
+    /// Largest displacement of the path's end point from its rest position, the support's
+    /// motion taken out, over the steps after the puncture [mm]: how far the insertion pushed
+    /// the target through the tissue.
+    pub target_shift_max: f64,
+    /// Largest displacement of the entry point (the material point the needle punctured) from
+    /// its rest position, the support's motion taken out, after the puncture [mm]: how far
+    /// the needle dragged the tissue at the surface.
+    pub entry_shift_max: f64,
 }
 
 impl Default for PathMetrics {
@@ -132,6 +151,8 @@ impl Default for PathMetrics {
             deviation_max: 0.0,
             steps_to_target: None,
             e_end: f64::INFINITY,
+            target_shift_max: 0.0,
+            entry_shift_max: 0.0,
         }
     }
 }
@@ -139,10 +160,20 @@ impl Default for PathMetrics {
 impl PathMetrics {
     /// After step `r` of `world`.
     pub fn step<const N: usize>(&mut self, world: &World<N>, r: &StepReport) {
-        let end = world.target(world.path.total_length());
+        let length = world.path.total_length();
+        let target = world.target_embedding(length);
+        let end = target.as_ref().map_or_else(
+            || world.path.at(length).0 + world.support_offset,
+            |e| world.gel_point(e),
+        );
         self.e_end = (r.tip - end).norm();
         if self.e_end <= REACH_TOLERANCE_MM && self.steps_to_target.is_none() {
             self.steps_to_target = Some(r.step + 1);
+        }
+        if world.punctured {
+            let (target, entry) = tissue_shift(world, target.as_ref());
+            self.target_shift_max = self.target_shift_max.max(target);
+            self.entry_shift_max = self.entry_shift_max.max(entry);
         }
         if !r.tip_inside() {
             return;

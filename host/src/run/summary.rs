@@ -217,6 +217,15 @@ pub struct RunSummary {
     pub path_deviation_mean_mm: f64,
     /// Largest distance from the tip to the deformed path inside the gel [mm].
     pub path_deviation_max_mm: f64,
+    /// Largest displacement of the path's end point (the target, embedded in the gel) from its
+    /// rest position after the puncture, the support's motion taken out [mm]: how far the
+    /// insertion pushed the target through the tissue (0 before a puncture).
+    pub target_shift_max_mm: f64,
+    /// Largest displacement of the entry point (the material point the needle punctured) from
+    /// its rest position, the support's motion taken out [mm]: how far the needle dragged the
+    /// tissue at the surface. Large beside a small path deviation: the path was followed
+    /// because the tissue was moved onto it.
+    pub entry_shift_max_mm: f64,
     /// Steps until the tip first came within `metrics::REACH_TOLERANCE_MM` of the path's end.
     pub steps_to_target: Option<usize>,
     /// The nominal steps of the insertion (path length / advance per step).
@@ -472,6 +481,8 @@ impl Statistics {
             period_overrun_max_ms: end.overruns.1,
             path_deviation_mean_mm: deviation.0,
             path_deviation_max_mm: deviation.1,
+            target_shift_max_mm: self.path.target_shift_max,
+            entry_shift_max_mm: self.path.entry_shift_max,
             steps_to_target: self.path.steps_to_target,
             steps_nominal: plan.steps,
             min_clearance_mm,

@@ -2,7 +2,8 @@
 //! (`scenes/suite/` by default), each run to the end with one configuration (the scenes' own
 //! settings and the same overrides for all) under each controller compared (by default this
 //! project's joint update and the paper's, [`Variant`]), and what issue "controller" measures of each —
-//! outcome, e_mean, e_max, e_final, path deviation, min clearance, steps to the target against
+//! outcome, e_mean, e_max, e_final, path deviation, min clearance, the tissue's shift at the
+//! target and the entry, steps to the target against
 //! the nominal steps, Gauss-Seidel cap hits, CPU and wall time per step — in `suite.md`,
 //! `suite.csv` and `suite.json`, with the worst case over all scenes against the targets, and a
 //! chart of the errors per scene (`suite.svg`, `suite.png`).
@@ -273,7 +274,7 @@ fn worst_of(rows: &[&SuiteRow]) -> Vec<String> {
     ]
 }
 
-const HEADER: [&str; 17] = [
+const HEADER: [&str; 19] = [
     "scene",
     "controller",
     "outcome",
@@ -284,6 +285,8 @@ const HEADER: [&str; 17] = [
     "path_dev_mean_mm",
     "path_dev_max_mm",
     "min_clearance_mm",
+    "target_shift_mm",
+    "entry_shift_mm",
     "steps_to_target",
     "steps_nominal",
     "gs_cap_hits",
@@ -311,6 +314,8 @@ fn cells(r: &SuiteRow) -> Vec<String> {
         cell(s.path_deviation_mean_mm, 3),
         cell(s.path_deviation_max_mm, 3),
         cell(s.min_clearance_mm, 3),
+        cell(s.target_shift_max_mm, 2),
+        cell(s.entry_shift_max_mm, 2),
         s.steps_to_target.map_or("—".to_owned(), |k| k.to_string()),
         s.steps_nominal.to_string(),
         s.gs_not_converged_steps.to_string(),
