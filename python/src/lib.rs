@@ -689,7 +689,7 @@ impl RunResult {
     fn summary<'py>(&self, py: Python<'py>) -> Bound<'py, PyDict> {
         self.summary.bind(py).clone()
     }
-    /// The outcome: `reached`, `missed_target`, `obstacle_hit` or `diverged`.
+    /// The outcome: `reached`, `missed_target`, `obstacle_hit`, `diverged` or `left_path`.
     #[getter]
     fn outcome(&self, py: Python<'_>) -> PyResult<String> {
         self.summary

@@ -449,6 +449,7 @@ fn the_readme_lists_every_exit_code_of_a_run() {
         Outcome::MissedTarget,
         Outcome::ObstacleHit,
         Outcome::Diverged,
+        Outcome::LeftPath,
     ] {
         expected.insert(o.exit_code());
     }

@@ -410,6 +410,13 @@ fn print_text(s: &RunSummary) {
             s.target_shift_max_mm, s.entry_shift_max_mm
         );
     }
+    if s.outcome == needle_host::run::Outcome::LeftPath {
+        println!(
+            "the tip reached the path's end but went {:.3} mm from the path on the way (more than {} mm): the target was reached off the planned route",
+            s.path_deviation_max_mm,
+            needle_host::run::metrics::PATH_TOLERANCE_MM
+        );
+    }
     if s.withdrawals > 0 {
         println!(
             "the needle left the gel {} time(s) after puncturing it (on an insertion, not a \

@@ -7,7 +7,10 @@
 //! [`STEP_ALLOWANCE`] × the nominal steps (path length / `advance_per_step`), it is still
 //! within that tolerance at the run's last step, and, on an insertion (not a back-and-forth
 //! schedule), the needle never left the gel after puncturing it: a needle pulled out and
-//! pushed in again entered the tissue twice, the second time off the planned entry.
+//! pushed in again entered the tissue twice, the second time off the planned entry. A run
+//! that meets all of that but whose tip strayed more than [`PATH_TOLERANCE_MM`] from the
+//! (deformed) path on the way is [`Outcome::LeftPath`]: the target was reached off the planned
+//! route, which is what the path was planned to avoid.
 
 // Units are written in brackets ([mm], [N]) as in the workspace style: not intra-doc links.
 #![allow(rustdoc::broken_intra_doc_links)]
@@ -24,6 +27,10 @@ pub const REACH_TOLERANCE_MM: f64 = 1.0;
 /// ... within this many times the nominal steps.
 pub const STEP_ALLOWANCE: f64 = 1.2;
 
+/// ... and the tip never further than this from the deformed path inside the gel [mm] (issue
+/// "controller"'s bound on the largest tracking error).
+pub const PATH_TOLERANCE_MM: f64 = 3.0;
+
 /// How a run ended.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "snake_case")]
@@ -33,6 +40,10 @@ pub enum Outcome {
     /// The run went to its end without an obstacle hit or a stop, but the tip did not end within
     /// the tolerance of the path's end point in time.
     MissedTarget,
+    /// The tip ended at the path's end point, but on the way it went further than
+    /// [`PATH_TOLERANCE_MM`] from the deformed path: the target reached off the planned route
+    /// (typically by dragging the tissue onto the needle).
+    LeftPath,
     /// The needle went into an obstacle (clearance below 0).
     ObstacleHit,
     /// The run stopped early (a breakdown, a non-finite state, a divergence or a transport
@@ -42,13 +53,15 @@ pub enum Outcome {
 
 impl Outcome {
     /// The process exit code of a run that ended so (`needle run`, `needle serve`): 0 reached,
-    /// 3 diverged / stopped, 4 missed the target, 5 hit an obstacle.
+    /// 3 diverged / stopped, 4 missed the target, 5 hit an obstacle, 6 reached the target off
+    /// the path.
     pub fn exit_code(self) -> u8 {
         match self {
             Self::Reached => 0,
             Self::Diverged => 3,
             Self::MissedTarget => 4,
             Self::ObstacleHit => 5,
+            Self::LeftPath => 6,
         }
     }
 
@@ -59,12 +72,14 @@ impl Outcome {
             Self::MissedTarget => "missed_target",
             Self::ObstacleHit => "obstacle_hit",
             Self::Diverged => "diverged",
+            Self::LeftPath => "left_path",
         }
     }
 
     /// The outcome of a run: stopped → diverged, else hit → obstacle hit, else reached when the
     /// tip ends within the tolerance, got there within the allowance and the needle was not
-    /// `withdrawn` from the gel on the way, else missed.
+    /// `withdrawn` from the gel on the way — left the path when its largest deviation from the
+    /// path `path_deviation_max_mm` is over [`PATH_TOLERANCE_MM`] — else missed.
     pub fn of(
         stopped: bool,
         obstacle_hit: bool,
@@ -72,6 +87,7 @@ impl Outcome {
         steps_to_target: Option<usize>,
         steps_nominal: usize,
         withdrawn: bool,
+        path_deviation_max_mm: f64,
     ) -> Self {
         let allowed = (STEP_ALLOWANCE * steps_nominal as f64).floor() as usize;
         if stopped {
@@ -82,7 +98,11 @@ impl Outcome {
             && steps_to_target.is_some_and(|k| k <= allowed)
             && !withdrawn
         {
-            Self::Reached
+            if path_deviation_max_mm > PATH_TOLERANCE_MM {
+                Self::LeftPath
+            } else {
+                Self::Reached
+            }
         } else {
             Self::MissedTarget
         }
@@ -234,39 +254,80 @@ mod tests {
         assert!(distance_to_polyline(&pts[..1], &Vector3::zeros()).is_infinite());
     }
 
+    /// Seed 404's `scurve_x` (`tools/gen_suite.py --seed 404`): the tip ended 0.001 mm from the
+    /// path's end after straying 14.7 mm from the path (the entry dragged 42.9 mm), and the run
+    /// counted as reached.
+    #[test]
+    fn target_reached_14_7_mm_off_the_path_is_not_reached() {
+        use Outcome::*;
+        assert_eq!(
+            Outcome::of(false, false, 0.001, Some(608), 620, false, 14.68),
+            LeftPath
+        );
+        assert_eq!(
+            Outcome::of(false, false, 0.001, Some(608), 620, false, 3.0),
+            Reached
+        );
+        assert_eq!(
+            Outcome::of(false, false, 0.001, Some(608), 620, false, 3.01),
+            LeftPath
+        );
+        // No deviation measured (never inside): judged by the target alone.
+        assert_eq!(
+            Outcome::of(false, false, 0.5, Some(60), 62, false, f64::NAN),
+            Reached
+        );
+        // The other outcomes come first.
+        assert_eq!(
+            Outcome::of(false, true, 0.001, Some(608), 620, false, 14.68),
+            ObstacleHit
+        );
+        assert_eq!(
+            Outcome::of(false, false, 1.5, Some(608), 620, false, 14.68),
+            MissedTarget
+        );
+        assert_eq!(
+            Outcome::of(true, false, 0.001, Some(608), 620, false, 14.68),
+            Diverged
+        );
+    }
+
     #[test]
     fn reached_needs_tolerance_time_and_no_hit_or_stop() {
         use Outcome::*;
         assert_eq!(
-            Outcome::of(false, false, 0.9, Some(120), 100, false),
+            Outcome::of(false, false, 0.9, Some(120), 100, false, 0.5),
             Reached
         );
         assert_eq!(
-            Outcome::of(false, false, 1.1, Some(120), 100, false),
+            Outcome::of(false, false, 1.1, Some(120), 100, false, 0.5),
             MissedTarget
         );
         assert_eq!(
-            Outcome::of(false, false, 0.9, Some(121), 100, false),
+            Outcome::of(false, false, 0.9, Some(121), 100, false, 0.5),
             MissedTarget
         );
         assert_eq!(
-            Outcome::of(false, false, 0.9, None, 100, false),
+            Outcome::of(false, false, 0.9, None, 100, false, 0.5),
             MissedTarget
         );
         assert_eq!(
-            Outcome::of(false, true, 0.1, Some(90), 100, false),
+            Outcome::of(false, true, 0.1, Some(90), 100, false, 0.5),
             ObstacleHit
         );
-        assert_eq!(Outcome::of(true, true, 0.1, Some(90), 100, false), Diverged);
+        assert_eq!(
+            Outcome::of(true, true, 0.1, Some(90), 100, false, 0.5),
+            Diverged
+        );
         // Pulled out of the gel and pushed in again on the way: not reached, however close.
         assert_eq!(
-            Outcome::of(false, false, 0.0, Some(90), 100, true),
+            Outcome::of(false, false, 0.0, Some(90), 100, true, 0.5),
             MissedTarget
         );
-        let codes: Vec<u8> = [Reached, Diverged, MissedTarget, ObstacleHit]
+        let codes: Vec<u8> = [Reached, Diverged, MissedTarget, ObstacleHit, LeftPath]
             .iter()
             .map(|o| o.exit_code())
             .collect();
-        assert_eq!(codes, [0, 3, 4, 5]);
+        assert_eq!(codes, [0, 3, 4, 5, 6]);
     }
 }

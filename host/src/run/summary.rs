@@ -385,6 +385,7 @@ impl Statistics {
             self.path.steps_to_target,
             plan.steps,
             plan.insert_only && withdrawals > 0,
+            deviation.1,
         );
         RunSummary {
             scene: plan.name.clone(),

@@ -180,7 +180,8 @@ pub fn run_scene(
 
 /// The suite's exit code, from the first controller's rows (the comparison's others are
 /// reported, not judged): 1 when a scene could not be run, else the worst outcome's
-/// ([`Outcome::exit_code`]: diverged 3, obstacle hit 5, missed 4, all reached 0).
+/// ([`Outcome::exit_code`]: diverged 3, obstacle hit 5, missed 4, reached off the path 6, all
+/// reached 0).
 pub fn exit_code(rows: &[SuiteRow]) -> u8 {
     let first = rows.first().map(|r| r.controller.clone());
     let rows: Vec<&SuiteRow> = rows
@@ -195,6 +196,7 @@ pub fn exit_code(rows: &[SuiteRow]) -> u8 {
         Outcome::Diverged,
         Outcome::ObstacleHit,
         Outcome::MissedTarget,
+        Outcome::LeftPath,
     ]
     .into_iter()
     .find(|o| has(*o))
