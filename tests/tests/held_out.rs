@@ -1,9 +1,20 @@
 //! Scenes of held-out sets (made by `tools/gen_suite.py` with other seeds) that once failed in
 //! a way the public suite did not show.
 
-use needle_host::run::{RunOptions, run};
+use needle_host::run::{RunOptions, RunSummary, run};
 use needle_host::scene::Scene;
 use std::path::Path;
+
+/// The summary of a whole run of the kept scene `tests/data/scenes/NAME`.
+fn run_kept(name: &str) -> RunSummary {
+    let file = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("data/scenes")
+        .join(name);
+    let scene = Scene::load(&file).expect("scene");
+    run(&scene, &RunOptions::default(), |_| {})
+        .expect("run")
+        .summary
+}
 
 /// `place_right` of seed 31: near the end of its path, with a joint at its limit, the Jacobian's
 /// column solves of 4 steps ran into the Gauss-Seidel cap (the active-set rounds of their
@@ -13,11 +24,7 @@ use std::path::Path;
 #[test]
 #[ignore = "an insertion of 690 steps (release, ~10 s): run with --include-ignored"]
 fn place_right_seed31_hits_no_gauss_seidel_cap() {
-    let file = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/scenes/place_right_seed31.toml");
-    let scene = Scene::load(&file).expect("scene");
-    let s = run(&scene, &RunOptions::default(), |_| {})
-        .expect("run")
-        .summary;
+    let s = run_kept("place_right_seed31.toml");
     eprintln!(
         "outcome {:?}, e_final {:.3} mm, sweeps max {}",
         s.outcome, s.e_final_mm, s.gs_iterations_max
@@ -36,11 +43,7 @@ fn place_right_seed31_hits_no_gauss_seidel_cap() {
 fn scurve_x_seed404_reached_14_mm_off_the_path_is_not_reached() {
     use needle_host::run::Outcome;
     use needle_host::run::metrics::PATH_TOLERANCE_MM;
-    let file = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/scenes/scurve_x_seed404.toml");
-    let scene = Scene::load(&file).expect("scene");
-    let s = run(&scene, &RunOptions::default(), |_| {})
-        .expect("run")
-        .summary;
+    let s = run_kept("scurve_x_seed404.toml");
     eprintln!(
         "outcome {:?}, e_final {:.3} mm, path deviation max {:.3} mm, entry shift {:.1} mm",
         s.outcome, s.e_final_mm, s.path_deviation_max_mm, s.entry_shift_max_mm
