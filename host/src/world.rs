@@ -339,6 +339,13 @@ impl<const N: usize> World<N> {
         self.gel_point(&self.entry)
     }
 
+    /// How far the entry point (the material point the needle punctured; the planned entry
+    /// before) has moved from its rest position, the support's motion taken out [mm].
+    pub fn entry_shift(&self) -> Vector3<f64> {
+        let mesh = self.gel.mesh();
+        self.entry_point() - self.entry.position(&mesh.nodes, &mesh.tets) - self.support_offset
+    }
+
     /// Insertion depth: tip distance past the entry point, 0 before puncture [mm].
     pub fn depth(&self) -> f64 {
         if self.punctured {

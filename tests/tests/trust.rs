@@ -122,6 +122,15 @@ fn needle_of_e_1e300_is_refused() {
 }
 
 #[test]
+fn entry_shift_bound_of_0_mm_is_refused() {
+    refused(
+        &[("inverse.max_entry_shift", "0")],
+        "inverse.max_entry_shift",
+    );
+    simple(&[("inverse.max_entry_shift", "15")]).expect("a positive bound is accepted");
+}
+
+#[test]
 fn time_step_1e_minus_300_is_refused() {
     refused(&[("solver.time_step", "1e-300")], "solver.time_step");
 }

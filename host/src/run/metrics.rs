@@ -134,7 +134,7 @@ pub fn tissue_shift<const N: usize>(world: &World<N>, target: Option<&Embedded>)
     let (rest, tets) = (&world.gel.mesh().nodes, &world.gel.mesh().tets);
     let shift =
         |e: &Embedded| (world.gel_point(e) - e.position(rest, tets) - world.support_offset).norm();
-    (target.map_or(0.0, shift), shift(&world.entry))
+    (target.map_or(0.0, shift), world.entry_shift().norm())
 }
 
 /// Path metrics gathered step by step.

@@ -163,9 +163,9 @@ impl fmt::Display for StopReason {
             Self::IkFailed { message } => write!(f, "{message}"),
             Self::Blocked { steps, seconds } => write!(
                 f,
-                "blocked: for {seconds:.1} s ({steps} steps) an obstacle's clearance margin held \
-                 the needle, the target stayed out of reach and the tip did not advance; \
-                 stopped rather than push into it"
+                "blocked: for {seconds:.1} s ({steps} steps) a clearance row (an obstacle's \
+                 margin, or the bound on the entry point's shift) held the needle, the target \
+                 stayed out of reach and the tip did not advance; stopped rather than push past it"
             ),
             Self::Interrupted => write!(f, "stopped by the caller"),
         }

@@ -418,6 +418,12 @@ pub struct InverseSpec {
     /// Look-ahead of the tip's heading once inserted [mm] (0: the path's tangent alone).
     #[serde(default = "default_aim_ahead")]
     pub aim_ahead: f64,
+    /// Largest shift of the entry point from its rest position the `"qp"` update plans [mm]:
+    /// how far the shaft may drag the tissue at the surface (the support's motion taken out).
+    /// A linearised row of the update like an obstacle's clearance, so the same margin
+    /// (`clearance_margin`) applies. Absent (the default): no bound.
+    #[serde(default)]
+    pub max_entry_shift: Option<f64>,
     /// Horizon of the tip's position objective once inserted: a distance [mm] (0: the error
     /// now) or `"auto"` (the default: [`HorizonSpec::horizon`] of the scene's steering length).
     #[serde(default)]
@@ -488,6 +494,7 @@ impl Default for InverseSpec {
             qp_angle_weight: default_qp_angle_weight(),
             qp_heading: default_qp_heading(),
             aim_ahead: default_aim_ahead(),
+            max_entry_shift: None,
             qp_horizon: HorizonSpec::Auto,
             replan_rejected: default_replan_rejected(),
             second_opinion: default_second_opinion(),

@@ -423,6 +423,9 @@ impl Scene {
         non_negative("inverse.angle_weight", v.angle_weight, "[mm/rad]")?;
         non_negative("inverse.tolerance", v.tolerance, "[mm²]")?;
         positive("inverse.max_base_step", v.max_base_step, "[mm]")?;
+        if let Some(s) = v.max_entry_shift {
+            positive("inverse.max_entry_shift", s, "[mm]")?;
+        }
         non_negative("inverse.clearance_margin", v.clearance_margin, "[mm]")?;
         non_negative("inverse.qp_angle_weight", v.qp_angle_weight, "[mm/rad]")?;
         if let HorizonSpec::Mm(h) = v.qp_horizon {

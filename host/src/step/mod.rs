@@ -405,7 +405,7 @@ impl<const N: usize> Pipeline<N> {
                 .all(|&(b, _)| (b..b + 3).all(|d| gel.is_deferral_exact(d)))
         };
         let observed = observe::observations(world, &self.free, c);
-        let clearances = observe::clearance_observations(world, &self.free, params.max_base_step);
+        let clearances = observe::clearance_observations(world, &self.free, params);
         let is_near = self.set.gel.points.iter().all(|p| near(&p.map))
             && (observed.iter())
                 .chain(clearances.iter().flat_map(|o| o.obstacle.iter()))
@@ -479,7 +479,7 @@ impl<const N: usize> Pipeline<N> {
             Some(made) => made,
             None => (
                 observe::observations(world, &self.free, c),
-                observe::clearance_observations(world, &self.free, params.max_base_step),
+                observe::clearance_observations(world, &self.free, params),
             ),
         };
         self.set.fill_frame(&observations, &mut self.frame);

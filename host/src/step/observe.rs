@@ -3,7 +3,7 @@
 //! by `needle_core::payload::ObsIndex`), and the needle base after free motion, the joints, the
 //! insertion depth and the sequence.
 
-use super::{FreePositions, ROWS};
+use super::{FreePositions, ROWS, StepParams};
 use crate::compliance::PointMap;
 use crate::constraints::{ClearanceObservation, Model, Observation};
 use crate::step::rows::gel_map;
@@ -83,17 +83,61 @@ pub fn rows_behind(max_base_step: f64) -> usize {
 /// closest surface point, through its triangle's vertices), observed after the free motion;
 /// the `NCLEAR` nearest obstacles when there are more. Then, as the capacity allows, the rows
 /// of the inserted needle points every [`BEHIND_SPACING_MM`] behind each nearest point over the
-/// step's largest advance `max_base_step` ([`rows_behind`]), lowest clearance first. None
-/// before puncture (nothing is inserted).
+/// step's largest advance `max_base_step` ([`rows_behind`]), lowest clearance first. With
+/// a bound on the entry point's shift (`max_entry_shift`) its row comes first ([`entry_shift_row`]).
+/// None before puncture (nothing is inserted).
 pub fn clearance_observations<const N: usize>(
     world: &World<N>,
     free: &FreePositions,
-    max_base_step: f64,
+    params: &StepParams,
 ) -> Vec<ClearanceObservation> {
     let depth = world.depth();
-    if !world.punctured || world.obstacles.is_empty() || depth <= 0.0 {
+    if !world.punctured || depth <= 0.0 {
         return Vec::new();
     }
+    let drag = entry_shift_row(world, free, params.max_entry_shift);
+    let mut rows = obstacle_rows(world, free, params.max_base_step, depth, drag.is_some());
+    if let Some(d) = drag {
+        rows.insert(0, d);
+    }
+    rows
+}
+
+/// The bound `|s| ≤ S` on the entry point's shift `s` from rest (`S` = `max_entry_shift`,
+/// [`World::entry_shift`]) as a clearance row, linearised along the shift now: clearance
+/// `S − |s|`, growing along `−ŝ` with the entry point's motion (none for `S = +∞` or no shift
+/// yet).
+fn entry_shift_row<const N: usize>(
+    world: &World<N>,
+    free: &FreePositions,
+    max_entry_shift: f64,
+) -> Option<ClearanceObservation> {
+    let s = world.entry_shift();
+    let len = s.norm();
+    (max_entry_shift.is_finite() && len > 0.0).then(|| ClearanceObservation {
+        needle: gel_observation(
+            gel_map(world, &world.entry),
+            free.gel_point(world, &world.entry),
+        ),
+        obstacle: Vec::new(),
+        clearance: max_entry_shift - len,
+        normal: -s / len,
+        current: world.entry_point(),
+    })
+}
+
+/// The obstacles' rows of [`clearance_observations`], one slot fewer when `reserved`.
+fn obstacle_rows<const N: usize>(
+    world: &World<N>,
+    free: &FreePositions,
+    max_base_step: f64,
+    depth: f64,
+    reserved: bool,
+) -> Vec<ClearanceObservation> {
+    if world.obstacles.is_empty() {
+        return Vec::new();
+    }
+    let capacity = NCLEAR - usize::from(reserved);
     let nodes = world.needle.positions();
     let n = nodes.len();
     // Arc length from the tip to each node.
@@ -244,9 +288,9 @@ pub fn clearance_observations<const N: usize>(
         })
         .collect();
     seen.sort_by(|a, b| a.0.total_cmp(&b.0));
-    seen.truncate(NCLEAR);
+    seen.truncate(capacity);
     extra.sort_by(|a, b| a.0.total_cmp(&b.0));
-    extra.truncate(NCLEAR - seen.len());
+    extra.truncate(capacity - seen.len());
     seen.extend(extra);
     seen.into_iter().map(|(_, c)| c).collect()
 }

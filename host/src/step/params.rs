@@ -171,6 +171,10 @@ pub struct StepParams {
     /// step, so how far behind the needle point nearest to an obstacle its clearance rows reach
     /// ([`super::observe::clearance_observations`]).
     pub max_base_step: f64,
+    /// The largest shift of the entry point from rest the controller plans
+    /// (`inverse.max_entry_shift`; `+∞`: none) [mm]: a clearance row of the frame
+    /// ([`super::observe::clearance_observations`]).
+    pub max_entry_shift: f64,
 }
 
 impl Default for StepParams {
@@ -180,6 +184,7 @@ impl Default for StepParams {
             insertion: Insertion::default(),
             dt: 0.04,
             max_base_step: 5.0,
+            max_entry_shift: f64::INFINITY,
         }
     }
 }
