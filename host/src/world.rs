@@ -339,11 +339,17 @@ impl<const N: usize> World<N> {
         self.gel_point(&self.entry)
     }
 
+    /// How far the gel point `e` has moved from its rest position, the support's motion taken
+    /// out [mm].
+    pub fn shift_from_rest(&self, e: &Embedded) -> Vector3<f64> {
+        let mesh = self.gel.mesh();
+        self.gel_point(e) - e.position(&mesh.nodes, &mesh.tets) - self.support_offset
+    }
+
     /// How far the entry point (the material point the needle punctured; the planned entry
     /// before) has moved from its rest position, the support's motion taken out [mm].
     pub fn entry_shift(&self) -> Vector3<f64> {
-        let mesh = self.gel.mesh();
-        self.entry_point() - self.entry.position(&mesh.nodes, &mesh.tets) - self.support_offset
+        self.shift_from_rest(&self.entry)
     }
 
     /// Insertion depth: tip distance past the entry point, 0 before puncture [mm].

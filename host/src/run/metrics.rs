@@ -131,10 +131,10 @@ pub fn distance_to_polyline(points: &[Vector3<f64>], p: &Vector3<f64>) -> f64 {
 /// material point the needle punctured) against their rest positions; 0 for a target outside
 /// the gel. Both 0 in a gel at rest.
 pub fn tissue_shift<const N: usize>(world: &World<N>, target: Option<&Embedded>) -> (f64, f64) {
-    let (rest, tets) = (&world.gel.mesh().nodes, &world.gel.mesh().tets);
-    let shift =
-        |e: &Embedded| (world.gel_point(e) - e.position(rest, tets) - world.support_offset).norm();
-    (target.map_or(0.0, shift), world.entry_shift().norm())
+    (
+        target.map_or(0.0, |e| world.shift_from_rest(e).norm()),
+        world.entry_shift().norm(),
+    )
 }
 
 /// Path metrics gathered step by step.

@@ -45,11 +45,15 @@ pub fn observations<const N: usize>(
         free: (free.needle[n_last] - free.needle[n_last - 1]) / len,
     };
     let (target, tangent) = target_observations(world, free, c);
-    let entry = gel_observation(
+    [tip, dir, target, tangent, entry_observation(world, free)]
+}
+
+/// The entry point, observed after the free motion.
+fn entry_observation<const N: usize>(world: &World<N>, free: &FreePositions) -> Observation {
+    gel_observation(
         gel_map(world, &world.entry),
         free.gel_point(world, &world.entry),
-    );
-    [tip, dir, target, tangent, entry]
+    )
 }
 
 /// The spacing of the extra clearance rows behind the needle point nearest to an obstacle
@@ -115,10 +119,7 @@ fn entry_shift_row<const N: usize>(
     let s = world.entry_shift();
     let len = s.norm();
     (max_entry_shift.is_finite() && len > 0.0).then(|| ClearanceObservation {
-        needle: gel_observation(
-            gel_map(world, &world.entry),
-            free.gel_point(world, &world.entry),
-        ),
+        needle: entry_observation(world, free),
         obstacle: Vec::new(),
         clearance: max_entry_shift - len,
         normal: -s / len,
