@@ -88,6 +88,38 @@ fn quick_report_writes_every_promised_file() {
         summary.runs.len()
     );
     assert!(lines[0].starts_with("run,scene,controller"));
+    // The figures a run's summary gives beyond its errors are in its row: how far the tissue
+    // moved, the needle's steering length and the horizon it set.
+    let header: Vec<&str> = lines[0].split(',').collect();
+    let col = |name: &str| {
+        header
+            .iter()
+            .position(|h| *h == name)
+            .unwrap_or_else(|| panic!("runs.csv has no column {name}"))
+    };
+    let mut rows = ::csv::Reader::from_path(out.join("runs.csv")).expect("runs.csv opens");
+    for (r, row) in summary.runs.iter().zip(rows.records()) {
+        let row = row.expect("a row of runs.csv");
+        assert_eq!(
+            row.len(),
+            header.len(),
+            "run {}: fields against the header",
+            r.id
+        );
+        let s = r.summary.as_ref().expect("every run ran");
+        for (name, want) in [
+            ("target_shift_max_mm", s.target_shift_max_mm),
+            ("entry_shift_max_mm", s.entry_shift_max_mm),
+            ("steering_length_mm", s.steering_length_mm),
+            ("qp_horizon_mm", s.qp_horizon_mm),
+            ("max_strain", s.max_strain),
+        ] {
+            let got: f64 = row[col(name)]
+                .parse()
+                .unwrap_or_else(|e| panic!("run {} {name} {:?}: {e}", r.id, &row[col(name)]));
+            assert_eq!(got, want, "run {}: {name}", r.id);
+        }
+    }
 
     // error_vs_depth.csv: a header and at least one point per run that punctured the gel.
     let err = String::from_utf8(read(&out, "error_vs_depth.csv")).expect("UTF-8");

@@ -6,7 +6,7 @@ use crate::run::RunSummary;
 use std::path::Path;
 
 /// The columns of `runs.csv`.
-const RUNS_HEADER: [&str; 48] = [
+const RUNS_HEADER: [&str; 55] = [
     "run",
     "scene",
     "controller",
@@ -36,6 +36,13 @@ const RUNS_HEADER: [&str; 48] = [
     "clearance_min_obstacle",
     "obstacle_hit",
     "clearances_mm",
+    "steering_length_mm",
+    "qp_horizon_mm",
+    "target_shift_max_mm",
+    "entry_shift_max_mm",
+    "max_strain",
+    "max_inverted_elements",
+    "advisories",
     "step_median_ms",
     "step_p99_ms",
     "step_mean_ms",
@@ -66,7 +73,10 @@ pub(super) fn n(x: f64) -> String {
     }
 }
 
-/// The columns of a run that come from its summary (`steps` … `gs_not_converged_steps`).
+/// The columns of a run that come from its summary (`steps` … `gs_not_converged_steps`): its
+/// errors and outcome, its clearances, the needle's steering length and the horizon it set, how
+/// far the tissue moved, the gel's strain, the set-up's advisories, the stage times and the
+/// solves.
 fn summary_fields(r: &ReportRun, s: &RunSummary) -> Vec<String> {
     let (cmin, cname) = r.min_clearance().unwrap_or((f64::NAN, ""));
     let t = &s.timing;
@@ -94,6 +104,13 @@ fn summary_fields(r: &ReportRun, s: &RunSummary) -> Vec<String> {
             .map(|c| format!("{}={}", c.name, c.min_mm))
             .collect::<Vec<_>>()
             .join(";"),
+        n(s.steering_length_mm),
+        n(s.qp_horizon_mm),
+        n(s.target_shift_max_mm),
+        n(s.entry_shift_max_mm),
+        n(s.max_strain),
+        s.max_inverted_elements.to_string(),
+        s.advisories.join(" | "),
     ];
     row.extend([
         n(t.total.median_ms),

@@ -263,7 +263,9 @@ fn file_list(md: &mut String, files: &[PathBuf]) {
         if let Some(n) = f.file_name() {
             let n = n.to_string_lossy();
             let what = match n.as_ref() {
-                "runs.csv" => "one row per run: parameters, errors, clearances, stage times",
+                "runs.csv" => {
+                    "one row per run: parameters, errors, clearances, tissue shift, stage times"
+                }
                 "error_vs_depth.csv" => "every run's error at every step inside the gel",
                 _ => continue,
             };
