@@ -76,29 +76,21 @@ impl Outcome {
         }
     }
 
-    /// The outcome of a run: stopped → diverged, else hit → obstacle hit, else reached when the
-    /// tip ends within the tolerance, got there within the allowance and the needle was not
-    /// `withdrawn` from the gel on the way — left the path when its largest deviation from the
-    /// path `path_deviation_max_mm` is over [`PATH_TOLERANCE_MM`] — else missed.
-    pub fn of(
-        stopped: bool,
-        obstacle_hit: bool,
-        e_final_mm: f64,
-        steps_to_target: Option<usize>,
-        steps_nominal: usize,
-        withdrawn: bool,
-        path_deviation_max_mm: f64,
-    ) -> Self {
-        let allowed = (STEP_ALLOWANCE * steps_nominal as f64).floor() as usize;
-        if stopped {
+    /// The outcome of a run that ended as `end` says: stopped → diverged, else hit → obstacle
+    /// hit, else reached when the tip ends within the tolerance, got there within the allowance
+    /// and the needle was not withdrawn from the gel on the way — left the path when its
+    /// largest deviation from the path is over [`PATH_TOLERANCE_MM`] — else missed.
+    pub fn of(end: &RunEnd) -> Self {
+        let allowed = (STEP_ALLOWANCE * end.steps_nominal as f64).floor() as usize;
+        if end.stopped {
             Self::Diverged
-        } else if obstacle_hit {
+        } else if end.obstacle_hit {
             Self::ObstacleHit
-        } else if e_final_mm <= REACH_TOLERANCE_MM
-            && steps_to_target.is_some_and(|k| k <= allowed)
-            && !withdrawn
+        } else if end.e_final_mm <= REACH_TOLERANCE_MM
+            && end.steps_to_target.is_some_and(|k| k <= allowed)
+            && !end.withdrawn
         {
-            if path_deviation_max_mm > PATH_TOLERANCE_MM {
+            if end.path_deviation_max_mm > PATH_TOLERANCE_MM {
                 Self::LeftPath
             } else {
                 Self::Reached
@@ -107,6 +99,25 @@ impl Outcome {
             Self::MissedTarget
         }
     }
+}
+
+/// What a run's [`Outcome`] is judged on.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RunEnd {
+    /// The run stopped early, not on purpose (a breakdown, a divergence, no step at all).
+    pub stopped: bool,
+    /// The needle went into an obstacle (a clearance below 0).
+    pub obstacle_hit: bool,
+    /// The tip's distance to the path's end point when the run ended [mm].
+    pub e_final_mm: f64,
+    /// The first step after which the tip was within [`REACH_TOLERANCE_MM`] of the path's end.
+    pub steps_to_target: Option<usize>,
+    /// The path's length over the advance per step.
+    pub steps_nominal: usize,
+    /// The needle was pulled out of the gel and pushed in again on the way (insert-only runs).
+    pub withdrawn: bool,
+    /// The tip's largest distance to the deformed path [mm] (NaN: never inside).
+    pub path_deviation_max_mm: f64,
 }
 
 /// Distance from `p` to the polyline through `points` [mm] (∞ for fewer than 2 points).
@@ -254,76 +265,81 @@ mod tests {
         assert!(distance_to_polyline(&pts[..1], &Vector3::zeros()).is_infinite());
     }
 
+    /// A run that ended 0.001 mm from the path's end, there at step 608 of 620 nominal, at most
+    /// 0.5 mm from the path.
+    const ON_TARGET: RunEnd = RunEnd {
+        stopped: false,
+        obstacle_hit: false,
+        e_final_mm: 0.001,
+        steps_to_target: Some(608),
+        steps_nominal: 620,
+        withdrawn: false,
+        path_deviation_max_mm: 0.5,
+    };
+
     /// Seed 404's `scurve_x` (`tools/gen_suite.py --seed 404`): the tip ended 0.001 mm from the
     /// path's end after straying 14.7 mm from the path (the entry dragged 42.9 mm), and the run
     /// counted as reached.
     #[test]
     fn target_reached_14_7_mm_off_the_path_is_not_reached() {
         use Outcome::*;
-        assert_eq!(
-            Outcome::of(false, false, 0.001, Some(608), 620, false, 14.68),
-            LeftPath
-        );
-        assert_eq!(
-            Outcome::of(false, false, 0.001, Some(608), 620, false, 3.0),
-            Reached
-        );
-        assert_eq!(
-            Outcome::of(false, false, 0.001, Some(608), 620, false, 3.01),
-            LeftPath
-        );
+        let off = |d| RunEnd {
+            path_deviation_max_mm: d,
+            ..ON_TARGET
+        };
+        assert_eq!(Outcome::of(&off(14.68)), LeftPath);
+        assert_eq!(Outcome::of(&off(3.0)), Reached);
+        assert_eq!(Outcome::of(&off(3.01)), LeftPath);
         // No deviation measured (never inside): judged by the target alone.
-        assert_eq!(
-            Outcome::of(false, false, 0.5, Some(60), 62, false, f64::NAN),
-            Reached
-        );
+        assert_eq!(Outcome::of(&off(f64::NAN)), Reached);
         // The other outcomes come first.
-        assert_eq!(
-            Outcome::of(false, true, 0.001, Some(608), 620, false, 14.68),
-            ObstacleHit
-        );
-        assert_eq!(
-            Outcome::of(false, false, 1.5, Some(608), 620, false, 14.68),
-            MissedTarget
-        );
-        assert_eq!(
-            Outcome::of(true, false, 0.001, Some(608), 620, false, 14.68),
-            Diverged
-        );
+        let hit = RunEnd {
+            obstacle_hit: true,
+            ..off(14.68)
+        };
+        assert_eq!(Outcome::of(&hit), ObstacleHit);
+        let missed = RunEnd {
+            e_final_mm: 1.5,
+            ..off(14.68)
+        };
+        assert_eq!(Outcome::of(&missed), MissedTarget);
+        let stopped = RunEnd {
+            stopped: true,
+            ..off(14.68)
+        };
+        assert_eq!(Outcome::of(&stopped), Diverged);
     }
 
     #[test]
     fn reached_needs_tolerance_time_and_no_hit_or_stop() {
         use Outcome::*;
-        assert_eq!(
-            Outcome::of(false, false, 0.9, Some(120), 100, false, 0.5),
-            Reached
-        );
-        assert_eq!(
-            Outcome::of(false, false, 1.1, Some(120), 100, false, 0.5),
-            MissedTarget
-        );
-        assert_eq!(
-            Outcome::of(false, false, 0.9, Some(121), 100, false, 0.5),
-            MissedTarget
-        );
-        assert_eq!(
-            Outcome::of(false, false, 0.9, None, 100, false, 0.5),
-            MissedTarget
-        );
-        assert_eq!(
-            Outcome::of(false, true, 0.1, Some(90), 100, false, 0.5),
-            ObstacleHit
-        );
-        assert_eq!(
-            Outcome::of(true, true, 0.1, Some(90), 100, false, 0.5),
-            Diverged
-        );
+        // 1.2 × 100 nominal steps allowed.
+        let run = |e_final_mm, steps_to_target| RunEnd {
+            e_final_mm,
+            steps_to_target,
+            steps_nominal: 100,
+            ..ON_TARGET
+        };
+        assert_eq!(Outcome::of(&run(0.9, Some(120))), Reached);
+        assert_eq!(Outcome::of(&run(1.1, Some(120))), MissedTarget);
+        assert_eq!(Outcome::of(&run(0.9, Some(121))), MissedTarget);
+        assert_eq!(Outcome::of(&run(0.9, None)), MissedTarget);
+        let hit = RunEnd {
+            obstacle_hit: true,
+            ..run(0.1, Some(90))
+        };
+        assert_eq!(Outcome::of(&hit), ObstacleHit);
+        let stopped_and_hit = RunEnd {
+            stopped: true,
+            ..hit
+        };
+        assert_eq!(Outcome::of(&stopped_and_hit), Diverged);
         // Pulled out of the gel and pushed in again on the way: not reached, however close.
-        assert_eq!(
-            Outcome::of(false, false, 0.0, Some(90), 100, true, 0.5),
-            MissedTarget
-        );
+        let withdrawn = RunEnd {
+            withdrawn: true,
+            ..run(0.0, Some(90))
+        };
+        assert_eq!(Outcome::of(&withdrawn), MissedTarget);
         let codes: Vec<u8> = [Reached, Diverged, MissedTarget, ObstacleHit, LeftPath]
             .iter()
             .map(|o| o.exit_code())

@@ -30,7 +30,7 @@ pub mod vtk_frames;
 pub mod watch;
 
 pub use crate::setup::planned_steps;
-pub use metrics::{Outcome, tissue_shift};
+pub use metrics::{Outcome, RunEnd, tissue_shift};
 pub use summary::{Clearance, RunSummary, STRAIN_EVERY, StageTiming, Timing};
 pub use watch::StopReason;
 

@@ -1,7 +1,7 @@
 //! The summary of a run: tracking error, clearances, stage times, solver and gel statistics —
 //! gathered step by step by [`Statistics`] and written once at the end.
 
-use super::metrics::{Outcome, PathMetrics};
+use super::metrics::{Outcome, PathMetrics, RunEnd};
 
 use super::{ControllerKind, Observer, StopReason};
 use crate::fem::tetra::StrainStats;
@@ -378,15 +378,15 @@ impl Statistics {
         // judged from where the tip is.
         let failed = (end.stopped.as_ref()).is_some_and(|(_, why)| !why.is_deliberate());
         let withdrawals = withdrawals(reports);
-        let outcome = Outcome::of(
-            failed || reports.is_empty(),
-            min_clearance_mm < 0.0,
-            self.path.e_end,
-            self.path.steps_to_target,
-            plan.steps,
-            plan.insert_only && withdrawals > 0,
-            deviation.1,
-        );
+        let outcome = Outcome::of(&RunEnd {
+            stopped: failed || reports.is_empty(),
+            obstacle_hit: min_clearance_mm < 0.0,
+            e_final_mm: self.path.e_end,
+            steps_to_target: self.path.steps_to_target,
+            steps_nominal: plan.steps,
+            withdrawn: plan.insert_only && withdrawals > 0,
+            path_deviation_max_mm: deviation.1,
+        });
         RunSummary {
             scene: plan.name.clone(),
             controller: end.controller,
