@@ -30,6 +30,7 @@ pub mod run;
 pub mod scene;
 pub mod setup;
 pub mod step;
+pub mod straighten;
 pub mod suite;
 pub mod support_motion;
 pub mod world;

@@ -169,6 +169,14 @@ pub fn path_bend(path: &crate::scene::SampledPath) -> f64 {
         .fold(0.0, f64::max)
 }
 
+/// Whether a needle of steering length `ell` [mm] lags a path that bends `bend` [mm] from its
+/// entry line ([`path_bend`]): `ell` under [`SHORT_STEERING_MM`] and `bend` over
+/// [`STRAIGHT_PATH_MM`]. Such a run gets an advisory ([`advisories`]) and, under
+/// `inverse.straighten = "auto"`, a straightened target ([`crate::scene::StraightenSpec`]).
+pub fn lags_its_bend(ell: f64, bend: f64) -> bool {
+    ell < SHORT_STEERING_MM && bend > STRAIGHT_PATH_MM
+}
+
 /// What the plan allows but makes unlikely to succeed, one sentence each, for the run's
 /// summary and the start of `needle run` (a scene that is refused fails [`check`] instead).
 /// Today one: a path that bends ([`path_bend`] above [`STRAIGHT_PATH_MM`]) for a needle whose
@@ -179,7 +187,7 @@ pub fn advisories<const N: usize>(scene: &Scene, world: &World<N>) -> Vec<String
     let mut out = Vec::new();
     let ell = scene.steering_length();
     let bend = path_bend(&world.path);
-    if ell < SHORT_STEERING_MM && bend > STRAIGHT_PATH_MM {
+    if lags_its_bend(ell, bend) {
         out.push(format!(
             "the needle's steering length in this gel is {ell:.1} mm (under {SHORT_STEERING_MM:.0} mm: \
              Ø {} mm, E {} MPa in a {} MPa gel) and the path bends {bend:.1} mm away from its entry \

@@ -52,6 +52,12 @@ pub struct Plan {
     /// The horizon of the `"qp"` update's tip objective, `inverse.qp_horizon` resolved
     /// ([`crate::scene::HorizonSpec::horizon`] of the steering length under `"auto"`) [mm].
     pub qp_horizon_mm: f64,
+    /// How far the target shown to the controller is straightened towards the path's chord,
+    /// `inverse.straighten` resolved ([`crate::scene::StraightenSpec::fraction`]) [-].
+    pub straighten: f64,
+    /// The lowest fraction along the path: lower than [`Plan::straighten`] where the chord
+    /// passes nearer an obstacle than the path ([`crate::straighten::Straightening`]) [-].
+    pub straighten_lowest: f64,
     /// What the plan allows but makes unlikely to succeed
     /// ([`crate::plan_check::advisories`]); empty when nothing is.
     pub advisories: Vec<String>,
@@ -188,7 +194,19 @@ impl<const N: usize> Setup<N> {
         let q = start_joints_n(scene, &robot)?;
         let needle = start_needle(scene, &robot, &q)?;
         let obstacles = obstacle_shapes(scene)?;
-        let world = World::try_new(WorldParts {
+        let lags = crate::plan_check::lags_its_bend(
+            scene.steering_length(),
+            crate::plan_check::path_bend(&path),
+        );
+        let straightening = crate::straighten::Straightening::new(
+            &path,
+            scene
+                .inverse
+                .straighten
+                .fraction(scene.inverse.method, lags),
+            &obstacles,
+        );
+        let mut world = World::try_new(WorldParts {
             robot,
             gel,
             needle,
@@ -210,6 +228,9 @@ impl<const N: usize> Setup<N> {
         let mut plan = plan(scene);
         plan.support_motion = (world.support_motion.as_ref()).map(|m| m.summary(model.is_some()));
         plan.advisories = crate::plan_check::advisories(scene, &world);
+        plan.straighten = straightening.fraction;
+        plan.straighten_lowest = straightening.lowest();
+        world.straightening = straightening;
         for a in &plan.advisories {
             tracing::warn!("scene `{}`: {a}", scene.name);
         }
@@ -482,6 +503,8 @@ fn plan(scene: &Scene) -> Plan {
         insert_only: scene.insertion.mode == crate::scene::InsertionMode::Insert,
         steering_length_mm: scene.steering_length(),
         qp_horizon_mm: scene.inverse_params().qp_horizon,
+        straighten: 0.0,
+        straighten_lowest: 0.0,
         advisories: Vec::new(),
     }
 }

@@ -122,6 +122,10 @@ pub struct World<const N: usize = 6> {
     pub support_motion: Option<SupportMotion>,
     /// The support's current displacement from rest (zero without motion) [mm].
     pub support_offset: Vector3<f64>,
+    /// How far the target shown to the controller is straightened towards the path's chord
+    /// along the path (`inverse.straighten` resolved, kept clear of the obstacles; none: the
+    /// planned path).
+    pub straightening: crate::straighten::Straightening,
 }
 
 /// The fixed rotation `r_off` between the needle-base frame `B` (needle along its z axis) and the
@@ -261,6 +265,7 @@ impl<const N: usize> World<N> {
             r_off,
             support_motion,
             support_offset: Vector3::zeros(),
+            straightening: Default::default(),
         })
     }
 
@@ -313,6 +318,19 @@ impl<const N: usize> World<N> {
             return None;
         }
         let (p, _) = self.path.at(c);
+        let (rest, tets) = self.rest_mesh();
+        self.rest_locator.locate(rest, tets, &p, 1.0)
+    }
+
+    /// The target shown to the controller at arc length `c`: the planned path's point
+    /// straightened as [`World::straightening`] says ([`SampledPath::straightened`]), embedded
+    /// in the gel as [`World::target_embedding`]. The errors are measured against the planned
+    /// target.
+    pub fn shown_target_embedding(&self, c: f64) -> Option<Embedded> {
+        if c < self.path.approach || !self.punctured {
+            return None;
+        }
+        let p = self.straightening.point(&self.path, c);
         let (rest, tets) = self.rest_mesh();
         self.rest_locator.locate(rest, tets, &p, 1.0)
     }

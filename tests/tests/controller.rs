@@ -172,14 +172,16 @@ fn a_tip_beside_a_bent_path_cuts_back_towards_it() {
 /// spent its heading to erase a 0.3 mm lead inside its bend (step 306: the tip's slope −0.168
 /// against the path's −0.196; step 342: −0.003 against −0.18), never turned fast enough again
 /// and stopped blocked at its obstacle's margin 18.7 mm from its target; with the horizon it
-/// ends 3.5 mm from it (`needle run scenes/suite/needle_thin.toml --json [--set
-/// inverse.qp_horizon=0]`).
+/// ends 3.5 mm from it (`needle run scenes/suite/needle_thin.toml --json --set
+/// inverse.straighten=0 [--set inverse.qp_horizon=0]`). Both runs are shown the planned path
+/// (`inverse.straighten = 0`; the default straightens it for this needle, a separate mechanism).
 #[test]
 #[ignore = "two full insertions (release, ~3 s): run with --include-ignored"]
 fn a_lead_inside_the_bend_is_not_spent_on_the_heading() {
     let end = |horizon: Option<&str>| {
         let overrides: Vec<(String, String)> = (horizon.iter())
             .map(|h| ("inverse.qp_horizon".to_string(), h.to_string()))
+            .chain([("inverse.straighten".to_string(), "0".to_string())])
             .collect();
         let scene = suite_scene("needle_thin")
             .with_overrides(&overrides)

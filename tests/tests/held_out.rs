@@ -7,10 +7,20 @@ use std::path::Path;
 
 /// The summary of a whole run of the kept scene `tests/data/scenes/NAME`.
 fn run_kept(name: &str) -> RunSummary {
+    run_kept_with(name, &[])
+}
+
+/// [`run_kept`] with scene fields overridden (`needle run --set FIELD=VALUE`).
+fn run_kept_with(name: &str, overrides: &[(&str, &str)]) -> RunSummary {
     let file = Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("data/scenes")
         .join(name);
-    let scene = Scene::load(&file).expect("scene");
+    let overrides: Vec<(String, String)> = (overrides.iter())
+        .map(|(f, v)| (f.to_string(), v.to_string()))
+        .collect();
+    let scene = Scene::load(&file)
+        .and_then(|s| s.with_overrides(&overrides))
+        .expect("scene");
     run(&scene, &RunOptions::default(), |_| {})
         .expect("run")
         .summary
@@ -56,4 +66,36 @@ fn scurve_x_seed404_reached_14_mm_off_the_path_is_not_reached() {
             assert_eq!(s.outcome.exit_code(), 6);
         }
     }
+}
+
+/// `gel_stiff` of seed 8128: a Ø 0.73 mm needle in a 70 kPa gel (steering length 14.1 mm) on a
+/// path bending 11.6 mm from its entry line. Shown the planned path, its tip lagged the bend
+/// deep in the gel and ended 1.51 mm from the target: missed. Where the needle lags its path's
+/// bend (the run's advisory), the target shown to the controller is straightened 40 % of the
+/// way towards the path's chord (`inverse.straighten = "auto"`), so the tip turns while it is
+/// shallow: it reaches the target, the errors still measured against the planned path.
+#[test]
+#[ignore = "two insertions of 515 steps (release, ~15 s): run with --include-ignored"]
+fn gel_stiff_seed8128_lagging_its_bend_reaches_with_the_target_straightened() {
+    use needle_host::run::Outcome;
+    use needle_host::scene::STRAIGHTEN_AUTO;
+    let auto = run_kept("gel_stiff_seed8128.toml");
+    let planned = run_kept_with("gel_stiff_seed8128.toml", &[("inverse.straighten", "0")]);
+    for (what, s) in [("auto", &auto), ("planned path", &planned)] {
+        eprintln!(
+            "{what}: straighten {}, outcome {:?}, e_mean {:.3} e_max {:.3} e_final {:.3} mm, \
+             clearance {:.3} mm",
+            s.straighten, s.outcome, s.e_mean_mm, s.e_max_mm, s.e_final_mm, s.min_clearance_mm
+        );
+    }
+    assert!(!auto.advisories.is_empty(), "the needle lags the bend");
+    assert_eq!(auto.straighten, STRAIGHTEN_AUTO);
+    assert_eq!(planned.straighten, 0.0);
+    assert_eq!(auto.outcome, Outcome::Reached);
+    assert!(auto.e_final_mm <= 1.0 && auto.e_max_mm <= 3.0 && auto.e_mean_mm <= 1.0);
+    assert!(auto.min_clearance_mm > 0.0);
+    assert!(
+        planned.e_final_mm > auto.e_final_mm,
+        "straightening brought the tip nearer the target"
+    );
 }

@@ -161,8 +161,9 @@ fn mesh_clearance_rows_predict_the_clearance_after_the_step_and_keep_the_needle_
 /// `needle_thin` (its path curves towards its obstacle faster than the thin needle can follow)
 /// with its sphere as a triangulated sphere: the mesh obstacle's clearance row holds the needle
 /// at the margin and the run is stopped as blocked, clear of it — as with the sphere
-/// (`obstacle_safety.rs`, whose reason to run the update before the angles' damping cap and the
-/// horizon, `inverse.qp_angle_damping_max = 21` and `inverse.qp_horizon = 0`, holds here too).
+/// (`obstacle_safety.rs`, whose reason to run the update before the angles' damping cap, the
+/// horizon and the straightened target, `inverse.qp_angle_damping_max = 21`,
+/// `inverse.qp_horizon = 0` and `inverse.straighten = 0`, holds here too).
 #[test]
 #[ignore = "a scenario run (release, ~10 s): run with --include-ignored"]
 fn a_needle_held_by_a_mesh_obstacle_is_stopped_as_blocked_not_driven_into_it() {
@@ -173,6 +174,7 @@ fn a_needle_held_by_a_mesh_obstacle_is_stopped_as_blocked_not_driven_into_it() {
         .with_overrides(&[
             ("inverse.qp_angle_damping_max".into(), "21".into()),
             ("inverse.qp_horizon".into(), "0".into()),
+            ("inverse.straighten".into(), "0".into()),
         ])
         .expect("override");
     let scene = spheres_as_meshes(thin, &obj);

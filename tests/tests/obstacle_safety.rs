@@ -36,8 +36,10 @@ fn helix_half_held_at_its_clearance_margin_until_it_slipped_into_the_obstacle_no
 /// (the default since 2026-12-02) the heading steers the needle past the obstacle (missed, 3.96
 /// mm from the end, not blocked), and with the horizon the default gives this needle since
 /// 2026-12-05 (`inverse.qp_horizon = "auto"`: 3 mm) it ends 3.46 mm from the end, not blocked
-/// either; so this test runs the update before both (`inverse.qp_angle_damping_max = 21`,
-/// `inverse.qp_horizon = 0`) to keep a needle that meets the margin.
+/// either, nor with the target straightened towards the path's chord (the default for this
+/// needle since 2026-12-07: 1.74 mm); so this test runs the update before all three
+/// (`inverse.qp_angle_damping_max = 21`, `inverse.qp_horizon = 0`, `inverse.straighten = 0`)
+/// to keep a needle that meets the margin.
 #[test]
 #[ignore = "scenario (release, ~5 s): run with --include-ignored"]
 fn needle_thin_held_at_its_clearance_margin_is_stopped_as_blocked() {
@@ -47,6 +49,7 @@ fn needle_thin_held_at_its_clearance_margin_is_stopped_as_blocked() {
         .with_overrides(&[
             ("inverse.qp_angle_damping_max".into(), "21".into()),
             ("inverse.qp_horizon".into(), "0".into()),
+            ("inverse.straighten".into(), "0".into()),
         ])
         .expect("override");
     let s = run(&scene, &RunOptions::default(), |_| {})

@@ -112,6 +112,7 @@ fn quick_report_writes_every_promised_file() {
             ("entry_shift_max_mm", s.entry_shift_max_mm),
             ("steering_length_mm", s.steering_length_mm),
             ("qp_horizon_mm", s.qp_horizon_mm),
+            ("straighten", s.straighten),
             ("max_strain", s.max_strain),
         ] {
             let got: f64 = row[col(name)]

@@ -363,6 +363,21 @@ fn print_text(s: &RunSummary) {
     for a in &s.advisories {
         println!("advisory: {a}");
     }
+    if s.straighten > 0.0 {
+        let near = if s.straighten_lowest < s.straighten {
+            format!(
+                " ({:.0} % where the chord passes nearer an obstacle than the path)",
+                100.0 * s.straighten_lowest
+            )
+        } else {
+            String::new()
+        };
+        println!(
+            "the target shown to the controller is straightened {:.0} % of the way towards the \
+             path's chord{near} (inverse.straighten); errors are measured against the planned path",
+            100.0 * s.straighten
+        );
+    }
     if let Some(m) = &s.support_motion {
         println!("support motion: {m}");
     }

@@ -6,7 +6,7 @@ use crate::run::RunSummary;
 use std::path::Path;
 
 /// The columns of `runs.csv`.
-const RUNS_HEADER: [&str; 55] = [
+const RUNS_HEADER: [&str; 56] = [
     "run",
     "scene",
     "controller",
@@ -38,6 +38,7 @@ const RUNS_HEADER: [&str; 55] = [
     "clearances_mm",
     "steering_length_mm",
     "qp_horizon_mm",
+    "straighten",
     "target_shift_max_mm",
     "entry_shift_max_mm",
     "max_strain",
@@ -106,6 +107,7 @@ fn summary_fields(r: &ReportRun, s: &RunSummary) -> Vec<String> {
             .join(";"),
         n(s.steering_length_mm),
         n(s.qp_horizon_mm),
+        n(s.straighten),
         n(s.target_shift_max_mm),
         n(s.entry_shift_max_mm),
         n(s.max_strain),

@@ -89,6 +89,13 @@ pub struct RunSummary {
     /// from the steering length under `"auto"` ([`crate::scene::HorizonSpec::horizon`]; 3 mm
     /// up to 18 mm of steering length, none from 21 mm). The paper's update does not use it.
     pub qp_horizon_mm: f64,
+    /// How far the target shown to the controller was straightened towards the path's chord:
+    /// `inverse.straighten` resolved (0.4 under `"auto"` for a needle that lags its path's
+    /// bend, the run's advisory; else 0) [-].
+    pub straighten: f64,
+    /// The lowest fraction along the path: lower than `straighten` where the path's chord
+    /// passes nearer an obstacle than the path itself, which the shown target is kept from [-].
+    pub straighten_lowest: f64,
     /// What the plan allows but makes unlikely to succeed, one sentence each
     /// ([`crate::plan_check::advisories`]: today a bending path for a needle whose steering
     /// length is under 18 mm); empty when nothing is. Said at the start, before any step.
@@ -394,6 +401,8 @@ impl Statistics {
             support_motion: plan.support_motion.clone(),
             steering_length_mm: plan.steering_length_mm,
             qp_horizon_mm: plan.qp_horizon_mm,
+            straighten: plan.straighten,
+            straighten_lowest: plan.straighten_lowest,
             advisories: plan.advisories.clone(),
             provenance: crate::provenance::Provenance::now(),
             steps: reports.len(),

@@ -428,6 +428,12 @@ pub struct InverseSpec {
     /// now) or `"auto"` (the default: [`HorizonSpec::horizon`] of the scene's steering length).
     #[serde(default)]
     pub qp_horizon: HorizonSpec,
+    /// How far the target shown to the `"qp"` update is straightened towards the path's chord
+    /// (the line from its entry point to its end): a fraction in [0, 1] (0: the planned path, 1:
+    /// the chord) or `"auto"` (the default: [`StraightenSpec::fraction`]). The errors are
+    /// measured against the planned path either way.
+    #[serde(default)]
+    pub straighten: StraightenSpec,
     /// Re-plan a `"qp"` step that its confirming solve rejected, with the Jacobian corrected by
     /// the secant along the rejected step (default false).
     #[serde(default = "default_replan_rejected")]
@@ -496,6 +502,7 @@ impl Default for InverseSpec {
             aim_ahead: default_aim_ahead(),
             max_entry_shift: None,
             qp_horizon: HorizonSpec::Auto,
+            straighten: StraightenSpec::Auto,
             replan_rejected: default_replan_rejected(),
             second_opinion: default_second_opinion(),
             qp_angle_damping_max: default_qp_angle_damping_max(),
@@ -702,6 +709,26 @@ enum NumberOrWord {
     Word(String),
 }
 
+/// A number, or `"auto"` (`None`); anything else is an error saying `expected`.
+fn number_or_auto<'de, D: serde::Deserializer<'de>>(
+    d: D,
+    expected: &str,
+) -> Result<Option<f64>, D::Error> {
+    match NumberOrWord::deserialize(d).map_err(|_| serde::de::Error::custom(expected))? {
+        NumberOrWord::Number(r) => Ok(Some(r)),
+        NumberOrWord::Word(w) if w == "auto" => Ok(None),
+        NumberOrWord::Word(w) => Err(serde::de::Error::custom(format!("{expected}, got \"{w}\""))),
+    }
+}
+
+/// A number, or `"auto"` for `None`.
+fn serialize_number_or_auto<S: serde::Serializer>(v: Option<f64>, s: S) -> Result<S::Ok, S::Error> {
+    match v {
+        Some(r) => s.serialize_f64(r),
+        None => s.serialize_str("auto"),
+    }
+}
+
 impl Serialize for NearRadiusSpec {
     fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
         match self {
@@ -783,23 +810,77 @@ impl HorizonSpec {
 
 impl Serialize for HorizonSpec {
     fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
-        match self {
-            Self::Auto => s.serialize_str("auto"),
-            Self::Mm(r) => s.serialize_f64(*r),
-        }
+        let v = match self {
+            Self::Auto => None,
+            Self::Mm(r) => Some(*r),
+        };
+        serialize_number_or_auto(v, s)
     }
 }
 
 impl<'de> Deserialize<'de> for HorizonSpec {
     fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
-        const EXPECTED: &str = "expected a horizon [mm] or \"auto\"";
-        match NumberOrWord::deserialize(d).map_err(|_| serde::de::Error::custom(EXPECTED))? {
-            NumberOrWord::Number(r) => Ok(Self::Mm(r)),
-            NumberOrWord::Word(w) if w == "auto" => Ok(Self::Auto),
-            NumberOrWord::Word(w) => {
-                Err(serde::de::Error::custom(format!("{EXPECTED}, got \"{w}\"")))
-            }
+        let v = number_or_auto(d, "expected a horizon [mm] or \"auto\"")?;
+        Ok(v.map_or(Self::Auto, Self::Mm))
+    }
+}
+
+/// How far the target shown to the `"qp"` update is straightened towards the path's chord
+/// (`inverse.straighten`; [`SampledPath::straightened`]).
+#[derive(Clone, Copy, Debug, PartialEq, Default)]
+pub enum StraightenSpec {
+    /// [`STRAIGHTEN_AUTO`] where the needle lags its path's bend
+    /// ([`crate::plan_check::lags_its_bend`]: the run's advisory), else none.
+    #[default]
+    Auto,
+    /// This fraction [0, 1] whatever the needle, gel and path.
+    Fraction(f64),
+}
+
+/// `inverse.straighten = "auto"`: the fraction for a needle that lags its path's bend.
+pub const STRAIGHTEN_AUTO: f64 = 0.4;
+
+impl StraightenSpec {
+    /// The fraction for the `"qp"` update on a path the needle lags (`lags_its_bend`:
+    /// [`crate::plan_check::lags_its_bend`]). `Auto`: [`STRAIGHTEN_AUTO`] there, else 0 — where
+    /// the gel holds the shaft, the tip can be turned while it is shallow and hardly at all
+    /// deep in the gel, so it is asked for the chord's heading early rather than for a bend it
+    /// cannot make late (`docs/benchmark.md`, "The path straightened where the needle lags
+    /// its bend"). The paper's update is always shown the planned path.
+    ///
+    /// # Example
+    /// ```
+    /// use needle_host::scene::{MethodSpec, StraightenSpec};
+    ///
+    /// assert_eq!(StraightenSpec::Auto.fraction(MethodSpec::Qp, true), 0.4); // thin, stiff gel
+    /// assert_eq!(StraightenSpec::Auto.fraction(MethodSpec::Qp, false), 0.0);
+    /// assert_eq!(StraightenSpec::Auto.fraction(MethodSpec::Paper, true), 0.0);
+    /// assert_eq!(StraightenSpec::Fraction(1.0).fraction(MethodSpec::Qp, false), 1.0);
+    /// ```
+    pub fn fraction(self, method: MethodSpec, lags_its_bend: bool) -> f64 {
+        match (self, method) {
+            (_, MethodSpec::Paper) => 0.0,
+            (Self::Fraction(b), _) => b,
+            (Self::Auto, _) if lags_its_bend => STRAIGHTEN_AUTO,
+            (Self::Auto, _) => 0.0,
         }
+    }
+}
+
+impl Serialize for StraightenSpec {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        let v = match self {
+            Self::Auto => None,
+            Self::Fraction(b) => Some(*b),
+        };
+        serialize_number_or_auto(v, s)
+    }
+}
+
+impl<'de> Deserialize<'de> for StraightenSpec {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        let v = number_or_auto(d, "expected a fraction in [0, 1] or \"auto\"")?;
+        Ok(v.map_or(Self::Auto, Self::Fraction))
     }
 }
 

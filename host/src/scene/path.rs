@@ -235,6 +235,28 @@ impl SampledPath {
         (seg, ((l - self.arc[seg]) / len).clamp(0.0, 1.0))
     }
 
+    /// The point at arc length `l` (from the start tip) of the path straightened by `beta` ∈
+    /// [0, 1] towards its chord, the straight line from the entry point to the path's end:
+    /// `P(l) + beta (C(u) − P(l))`, `C(u)` the chord's point at the same fraction `u` of the
+    /// path's length [mm]. The approach, the entry point and the end are the path's own; `beta`
+    /// = 0 is the path, 1 the chord.
+    ///
+    /// A needle whose gel holds its shaft (a short steering length) can turn its tip while it is
+    /// shallow and hardly at all deep in the gel: it can follow a path's chord, not a bend that
+    /// tightens with depth. The controller is shown the straightened path
+    /// (`inverse.straighten`); the errors are still measured against the planned one.
+    pub fn straightened(&self, l: f64, beta: f64) -> Vector3<f64> {
+        let p = self.at(l).0;
+        let len = self.length();
+        if l <= self.approach || beta == 0.0 || len <= 0.0 {
+            return p;
+        }
+        let u = ((l - self.approach) / len).min(1.0);
+        let end = self.points[self.points.len() - 1];
+        let chord = self.entry() + u * (end - self.entry());
+        p + beta * (chord - p)
+    }
+
     /// Point and unit tangent at arc length `l` from the start tip (the approach counts, so
     /// `l < approach` lies in the air on the straight approach segment) [mm].
     pub fn at(&self, l: f64) -> (Vector3<f64>, Vector3<f64>) {

@@ -9,6 +9,14 @@ fn err_of(text: &str) -> SceneError {
     }
 }
 
+/// `scene` with its fields overridden (`needle run --set FIELD=VALUE`).
+fn overridden(scene: &Scene, overrides: &[(&str, &str)]) -> Result<Scene, SceneError> {
+    let o: Vec<(String, String)> = (overrides.iter())
+        .map(|(a, b)| (a.to_string(), b.to_string()))
+        .collect();
+    scene.with_overrides(&o)
+}
+
 const MINIMAL: &str = r#"
 name = "minimal"
 [path]
@@ -554,12 +562,7 @@ fn qp_horizon_is_auto_by_default_and_follows_the_steering_length() {
         0.0,
         "long ℓ: the error now"
     );
-    let set = |o: &[(&str, &str)]| {
-        let o: Vec<(String, String)> = (o.iter())
-            .map(|(a, b)| (a.to_string(), b.to_string()))
-            .collect();
-        complex.with_overrides(&o)
-    };
+    let set = |o: &[(&str, &str)]| overridden(&complex, o);
     // Ø 0.52 mm steel in 25 kPa (the public `needle_thin`): ℓ = 13.0 mm.
     let thin = set(&[("needle.diameter", "0.52"), ("gel.young_modulus", "0.025")]).unwrap();
     assert!(
@@ -586,4 +589,79 @@ fn qp_horizon_is_auto_by_default_and_follows_the_steering_length() {
     let e = set(&[("inverse.qp_horizon", "\"far\"")]).unwrap_err();
     assert!(e.to_string().contains("\"auto\""), "{e}");
     assert!(e.to_string().contains("qp_horizon"), "{e}");
+}
+
+/// `SampledPath::straightened`: the planned path at 0, the chord from the entry point to the
+/// end at 1, in between at a fraction; the approach, the entry point and the end unchanged.
+#[test]
+fn straightened_path_runs_from_the_path_to_its_chord() {
+    // The simple benchmark's path: x = 300 + 8 s², bending towards +x.
+    let bent = Scene::builtin("simple").unwrap();
+    let p = bent.sampled_path().unwrap();
+    let (entry, end) = (p.entry(), p.at(p.total_length()).0);
+    for beta in [0.0, 0.4, 1.0] {
+        // The approach in the air, the entry point and the end are the path's own.
+        for l in [0.0, 5.0, p.approach, p.total_length(), 1e9] {
+            assert!(
+                (p.straightened(l, beta) - p.at(l).0).norm() < 1e-12,
+                "{l} {beta}"
+            );
+        }
+    }
+    assert!((p.straightened(p.approach, 1.0) - entry).norm() < 1e-12);
+    for k in 1..10 {
+        let l = p.approach + p.length() * f64::from(k) / 10.0;
+        let (at, chord) = (p.at(l).0, entry + (end - entry) * f64::from(k) / 10.0);
+        assert_eq!(p.straightened(l, 0.0), at);
+        assert!((p.straightened(l, 1.0) - chord).norm() < 1e-9, "{l}");
+        let mid = p.straightened(l, 0.4);
+        assert!((mid - (at + 0.4 * (chord - at))).norm() < 1e-9, "{l}");
+        // The path bends towards +x; its chord lies beyond it, so the shown point does too.
+        assert!(
+            chord.x > at.x && mid.x > at.x && mid.x < chord.x,
+            "{l}: {at} {mid} {chord}"
+        );
+    }
+}
+
+/// `inverse.straighten`: `"auto"` by default, 0.4 for the `"qp"` update where the needle lags
+/// its path's bend (the advisory's condition), none elsewhere and never for the paper's
+/// update; a fraction is taken as given; outside [0, 1] or another word is refused naming the
+/// field.
+#[test]
+fn straighten_is_auto_by_default_and_only_where_the_needle_lags_its_bend() {
+    let complex = Scene::builtin("complex").unwrap();
+    assert_eq!(
+        complex.inverse.straighten,
+        StraightenSpec::Auto,
+        "the default"
+    );
+    assert_eq!(
+        StraightenSpec::Auto.fraction(MethodSpec::Qp, true),
+        STRAIGHTEN_AUTO
+    );
+    assert_eq!(StraightenSpec::Auto.fraction(MethodSpec::Qp, false), 0.0);
+    assert_eq!(StraightenSpec::Auto.fraction(MethodSpec::Paper, true), 0.0);
+    assert!(crate::plan_check::lags_its_bend(13.0, 11.5));
+    assert!(!crate::plan_check::lags_its_bend(26.5, 11.5), "long ℓ");
+    assert!(
+        !crate::plan_check::lags_its_bend(13.0, 0.5),
+        "a straight path"
+    );
+    let set = |o: &[(&str, &str)]| overridden(&complex, o);
+    let fixed = set(&[("inverse.straighten", "0.25")]).unwrap();
+    assert_eq!(fixed.inverse.straighten, StraightenSpec::Fraction(0.25));
+    assert_eq!(
+        fixed.inverse.straighten.fraction(MethodSpec::Qp, false),
+        0.25
+    );
+    let auto = set(&[("inverse.straighten", "\"auto\"")]).unwrap();
+    assert_eq!(auto.inverse.straighten, StraightenSpec::Auto);
+    for bad in ["-0.1", "1.5", "nan"] {
+        let e = set(&[("inverse.straighten", bad)]).unwrap_err();
+        assert_eq!(e.field, "inverse.straighten", "{bad}");
+    }
+    let e = set(&[("inverse.straighten", "\"more\"")]).unwrap_err();
+    assert!(e.to_string().contains("\"auto\""), "{e}");
+    assert!(e.to_string().contains("straighten"), "{e}");
 }

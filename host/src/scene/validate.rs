@@ -3,7 +3,9 @@
 //! insertion), each value against its physical meaning and a range where a number far outside
 //! it can only be a typo or an attack (a needle of 10³⁰⁰ MPa, a time step of 10⁻³⁰⁰ s).
 
-use super::{FAR_RESIDUAL_MAX, HorizonSpec, NearRadiusSpec, PoseSpec, SampledPath, Scene};
+use super::{
+    FAR_RESIDUAL_MAX, HorizonSpec, NearRadiusSpec, PoseSpec, SampledPath, Scene, StraightenSpec,
+};
 use crate::free_motion::LAG_ROTATION_LIMIT;
 use needle_core::kinematics::{Kinematics, Robot};
 
@@ -430,6 +432,9 @@ impl Scene {
         non_negative("inverse.qp_angle_weight", v.qp_angle_weight, "[mm/rad]")?;
         if let HorizonSpec::Mm(h) = v.qp_horizon {
             non_negative("inverse.qp_horizon", h, "[mm]")?;
+        }
+        if let StraightenSpec::Fraction(b) = v.straighten {
+            within("inverse.straighten", b, 0.0, 1.0, "[-]")?;
         }
         non_negative(
             "inverse.qp_angle_damping_max",

@@ -306,8 +306,9 @@ fn gel_observation(map: PointMap, free: Vector3<f64>) -> Observation {
     }
 }
 
-/// The target point and tangent: embedded in the gel (the tangent as the difference quotient
-/// over [`TANGENT_STEP`]) once both are inside it, else the rest path's, carried by the support's
+/// The target point and tangent shown to the controller ([`World::shown_target_embedding`]):
+/// embedded in the gel (the tangent as the difference quotient over [`TANGENT_STEP`]) once both
+/// are inside it, else the rest path's, carried by the support's
 /// displacement (fixed in the world without a support motion).
 fn target_observations<const N: usize>(
     world: &World<N>,
@@ -316,8 +317,8 @@ fn target_observations<const N: usize>(
 ) -> (Observation, Observation) {
     let fixed = PointMap::weighted([]);
     match (
-        world.target_embedding(c),
-        world.target_embedding(c + TANGENT_STEP),
+        world.shown_target_embedding(c),
+        world.shown_target_embedding(c + TANGENT_STEP),
     ) {
         (Some(a), Some(b)) => {
             let (ma, mb) = (gel_map(world, &a), gel_map(world, &b));

@@ -276,7 +276,7 @@ fn worst_of(rows: &[&SuiteRow]) -> Vec<String> {
     ]
 }
 
-const HEADER: [&str; 19] = [
+const HEADER: [&str; 20] = [
     "scene",
     "controller",
     "outcome",
@@ -296,6 +296,7 @@ const HEADER: [&str; 19] = [
     "wall_ms_per_step",
     "steering_length_mm",
     "qp_horizon_mm",
+    "straighten",
 ];
 
 /// The cells of one row, in [`HEADER`]'s order.
@@ -325,6 +326,7 @@ fn cells(r: &SuiteRow) -> Vec<String> {
         cell(s.timing.total.mean_ms, 2),
         cell(s.steering_length_mm, 1),
         cell(s.qp_horizon_mm, 1),
+        cell(s.straighten, 2),
     ]
 }
 
