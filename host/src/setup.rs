@@ -52,9 +52,11 @@ pub struct Plan {
     /// The horizon of the `"qp"` update's tip objective, `inverse.qp_horizon` resolved
     /// ([`crate::scene::HorizonSpec::horizon`] of the steering length under `"auto"`) [mm].
     pub qp_horizon_mm: f64,
-    /// How far the target shown to the controller is straightened towards the path's chord,
-    /// `inverse.straighten` resolved ([`crate::scene::StraightenSpec::fraction`]) [-].
+    /// How far the target shown to the controller is straightened towards a chord of the path,
+    /// `inverse.straighten` resolved ([`crate::straighten::Straightening::for_scene`]) [-].
     pub straighten: f64,
+    /// Where that chord starts: path length past the entry point [mm].
+    pub straighten_from_mm: f64,
     /// The lowest fraction along the path: lower than [`Plan::straighten`] where the chord
     /// passes nearer an obstacle than the path ([`crate::straighten::Straightening`]) [-].
     pub straighten_lowest: f64,
@@ -198,12 +200,11 @@ impl<const N: usize> Setup<N> {
             scene.steering_length(),
             crate::plan_check::path_bend(&path),
         );
-        let straightening = crate::straighten::Straightening::new(
+        let straightening = crate::straighten::Straightening::for_scene(
             &path,
-            scene
-                .inverse
-                .straighten
-                .fraction(scene.inverse.method, lags),
+            (scene.inverse.straighten, scene.inverse.straighten_from),
+            scene.inverse.method,
+            (lags, scene.steering_length()),
             &obstacles,
         );
         let mut world = World::try_new(WorldParts {
@@ -229,6 +230,7 @@ impl<const N: usize> Setup<N> {
         plan.support_motion = (world.support_motion.as_ref()).map(|m| m.summary(model.is_some()));
         plan.advisories = crate::plan_check::advisories(scene, &world);
         plan.straighten = straightening.fraction;
+        plan.straighten_from_mm = straightening.from;
         plan.straighten_lowest = straightening.lowest();
         world.straightening = straightening;
         for a in &plan.advisories {
@@ -504,6 +506,7 @@ fn plan(scene: &Scene) -> Plan {
         steering_length_mm: scene.steering_length(),
         qp_horizon_mm: scene.inverse_params().qp_horizon,
         straighten: 0.0,
+        straighten_from_mm: 0.0,
         straighten_lowest: 0.0,
         advisories: Vec::new(),
     }

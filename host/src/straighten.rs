@@ -1,19 +1,21 @@
-//! The target shown to the controller, straightened towards the path's chord
-//! (`inverse.straighten`, [`SampledPath::straightened`]) and kept from coming nearer an
-//! obstacle than the planned path does.
+//! The target shown to the controller, straightened towards a chord of the path
+//! (`inverse.straighten`, `inverse.straighten_from`, [`SampledPath::straightened`]), never
+//! more than [`MAX_OFFSET_MM`] off the path and kept from coming nearer an obstacle than the
+//! planned path does.
 //!
 //! A needle whose gel holds its shaft (a short steering length) turns its tip while it is
-//! shallow and hardly at all deep in the gel, so it is asked for the heading of the path's chord
-//! early rather than for a bend it cannot make late. The chord of a bending path lies inside
-//! the bend, where an obstacle placed beside the path may lie too: a target shown inside an
-//! obstacle holds the tip at the obstacle's margin, unable to advance. So along the path the
-//! fraction is the largest one (up to the one asked for) at which the shown point is no nearer
-//! to any obstacle than the path's own point, or at least [`OBSTACLE_REACH_MM`] from it, and
-//! it ramps back over [`RAMP_MM`] of path on either side of where an obstacle lowers it, so the
-//! shown target moves smoothly.
+//! shallow and hardly at all deep in the gel. Under `"auto"`, where it lags its path's bend, it
+//! is shown the path down to one steering length past the entry point and the straight line
+//! from there to the path's end after ([`Straightening::for_scene`]). The chord of a bending
+//! path lies inside the bend, where an obstacle placed beside the path may lie too: a target
+//! shown inside an obstacle holds the tip at the obstacle's margin, unable to advance. So along
+//! the path the fraction is the largest one (up to the one asked for) at which the shown point
+//! is no nearer to any obstacle than the path's own point, or at least [`OBSTACLE_REACH_MM`]
+//! from it, and it ramps back over [`RAMP_MM`] of path on either side of where an obstacle
+//! lowers it, so the shown target moves smoothly.
 
 use crate::proximity::ClosedSurface;
-use crate::scene::SampledPath;
+use crate::scene::{MethodSpec, SampledPath, StraightenFromSpec, StraightenSpec};
 use crate::world::ObstacleShape;
 use nalgebra::Vector3;
 
@@ -25,6 +27,17 @@ pub const OBSTACLE_REACH_MM: f64 = 2.0;
 /// Length of path over which the fraction returns to the one asked for, on either side of where
 /// an obstacle lowers it [mm].
 pub const RAMP_MM: f64 = 5.0;
+/// The shown point is never farther than this from the path's own point [mm]: half the
+/// deviation from the path that makes a run that reaches its target
+/// [`crate::run::Outcome::LeftPath`] ([`crate::run::metrics::PATH_TOLERANCE_MM`]), so a tip
+/// that lags the shown point by as much again still keeps to the path's tolerance.
+pub const MAX_OFFSET_MM: f64 = crate::run::metrics::PATH_TOLERANCE_MM / 2.0;
+/// `inverse.straighten = "auto"` where the needle lags its path's bend: the whole way to the
+/// chord from one steering length deep (within [`MAX_OFFSET_MM`]).
+pub const AUTO_FRACTION: f64 = 1.0;
+/// ... unless an obstacle lies nearer that chord than the path: then this fraction of the
+/// way towards the chord from the entry point, which leaves the path less deep in the gel.
+pub const AUTO_FRACTION_NEAR_OBSTACLE: f64 = 0.4;
 /// Fractions tried at each table point: the one asked for times `j / LEVELS`, `j` = `LEVELS` … 0.
 const LEVELS: u32 = 16;
 
@@ -33,14 +46,53 @@ const LEVELS: u32 = 16;
 pub struct Straightening {
     /// The fraction asked for (`inverse.straighten` resolved) [-]; 0: the planned path.
     pub fraction: f64,
+    /// Where the chord starts: path length past the entry point [mm] (0: the entry point).
+    pub from: f64,
+    /// Whether an obstacle lowers the fraction somewhere (below what [`MAX_OFFSET_MM`] alone
+    /// allows).
+    pub obstacle_limited: bool,
     /// The fraction at arc length `k · SPACING_MM` from the start tip (empty: none).
     table: Vec<f64>,
 }
 
 impl Straightening {
-    /// The fractions along `path` for `fraction` asked for, kept clear of `obstacles` (their
-    /// rest shapes: the path and the obstacles are embedded in the gel together).
-    pub fn new(path: &SampledPath, fraction: f64, obstacles: &[ObstacleShape]) -> Self {
+    /// The straightening of a scene's path: `spec` and `from` resolved for the update `method`,
+    /// where the needle does or does not lag its path's bend (`lags_its_bend`:
+    /// [`crate::plan_check::lags_its_bend`]) with its `steering_length` [mm]. The paper's update
+    /// is shown the planned path; a fraction is taken as given, from where `from` says.
+    /// `"auto"`: none where the needle keeps up with its path; where it lags,
+    /// [`AUTO_FRACTION`] of the way towards the chord from `from` (`"auto"`: one steering
+    /// length deep), unless an obstacle lies nearer that chord than the path: then
+    /// [`AUTO_FRACTION_NEAR_OBSTACLE`] towards the chord from the entry point
+    /// (`docs/benchmark.md`, "The path straightened from one steering length deep").
+    pub fn for_scene(
+        path: &SampledPath,
+        (spec, from): (StraightenSpec, StraightenFromSpec),
+        method: MethodSpec,
+        (lags_its_bend, steering_length): (bool, f64),
+        obstacles: &[ObstacleShape],
+    ) -> Self {
+        let from_mm = from.from(steering_length);
+        match (spec, method) {
+            (_, MethodSpec::Paper) => Self::default(),
+            (StraightenSpec::Fraction(b), _) => Self::new(path, b, from_mm, obstacles),
+            (StraightenSpec::Auto, _) if !lags_its_bend => Self::default(),
+            (StraightenSpec::Auto, _) => {
+                let deep = Self::new(path, AUTO_FRACTION, from_mm, obstacles);
+                if deep.obstacle_limited {
+                    Self::new(path, AUTO_FRACTION_NEAR_OBSTACLE, 0.0, obstacles)
+                } else {
+                    deep
+                }
+            }
+        }
+    }
+
+    /// The fractions along `path` for `fraction` asked for towards the chord from `from` [mm]
+    /// past the entry point, at most [`MAX_OFFSET_MM`] off the path and kept clear of
+    /// `obstacles` (their rest shapes: the path and the obstacles are embedded in the gel
+    /// together).
+    pub fn new(path: &SampledPath, fraction: f64, from: f64, obstacles: &[ObstacleShape]) -> Self {
         if fraction <= 0.0 {
             return Self::default();
         }
@@ -58,19 +110,28 @@ impl Straightening {
             }
         };
         let n = (path.total_length() / SPACING_MM).ceil() as usize + 1;
+        let levels = || {
+            (0..=LEVELS)
+                .rev()
+                .map(|j| fraction * f64::from(j) / f64::from(LEVELS))
+        };
+        let mut obstacle_limited = false;
         let free: Vec<f64> = (0..n)
             .map(|i| {
                 let c = i as f64 * SPACING_MM;
                 let p = path.at(c).0;
+                let near = |q: &Vector3<f64>| (q - p).norm() <= MAX_OFFSET_MM;
                 let clear = |q: &Vector3<f64>| {
                     (0..obstacles.len())
                         .all(|k| distance(k, q) >= distance(k, &p).min(OBSTACLE_REACH_MM))
                 };
-                (0..=LEVELS)
-                    .rev()
-                    .map(|j| fraction * f64::from(j) / f64::from(LEVELS))
-                    .find(|&b| clear(&path.straightened(c, b)))
-                    .unwrap_or(0.0)
+                let shown = |b: f64| path.straightened(c, b, from);
+                let offset = levels().find(|&b| near(&shown(b))).unwrap_or(0.0);
+                let b = levels()
+                    .find(|&b| near(&shown(b)) && clear(&shown(b)))
+                    .unwrap_or(0.0);
+                obstacle_limited |= b < offset;
+                b
             })
             .collect();
         // Each point at most the lowest fraction of its neighbours (so that the table's linear
@@ -89,7 +150,12 @@ impl Straightening {
                     .fold(fraction, f64::min)
             })
             .collect();
-        Self { fraction, table }
+        Self {
+            fraction,
+            from,
+            obstacle_limited,
+            table,
+        }
     }
 
     /// The fraction at arc length `c` from the start tip (linear between table points).
@@ -112,7 +178,7 @@ impl Straightening {
     /// The point shown to the controller at arc length `c` ([`SampledPath::straightened`] by
     /// [`Straightening::at`]).
     pub fn point(&self, path: &SampledPath, c: f64) -> Vector3<f64> {
-        path.straightened(c, self.at(c))
+        path.straightened(c, self.at(c), self.from)
     }
 }
 
@@ -130,18 +196,18 @@ mod tests {
     #[test]
     fn straightened_target_keeps_its_distance_from_an_obstacle_on_the_chord_side() {
         let path = Scene::builtin("simple").unwrap().sampled_path().unwrap();
-        let free = Straightening::new(&path, 0.4, &[]);
+        let free = Straightening::new(&path, 0.4, 0.0, &[]);
         for c in [0.0, 10.0, 30.0, 59.0, 100.0] {
             assert_eq!(free.at(c), 0.4);
         }
-        assert_eq!(Straightening::new(&path, 0.0, &[]).at(30.0), 0.0);
+        assert_eq!(Straightening::new(&path, 0.0, 0.0, &[]).at(30.0), 0.0);
         // At mid-path, on the chord's side (+x) of the path point.
         let mid = path.approach + 0.5 * path.length();
-        let (p, chord) = (path.at(mid).0, path.straightened(mid, 1.0));
+        let (p, chord) = (path.at(mid).0, path.straightened(mid, 1.0, 0.0));
         let side = (chord - p).normalize();
         let (center, radius) = (p + side * 3.6, 3.0);
         let sphere = [ObstacleShape::Sphere { center, radius }];
-        let s = Straightening::new(&path, 0.4, &sphere);
+        let s = Straightening::new(&path, 0.4, 0.0, &sphere);
         assert!(s.at(mid) < 0.1, "{}", s.at(mid));
         assert!(s.lowest() < 0.1);
         assert_eq!(
@@ -164,5 +230,66 @@ mod tests {
             assert!(step <= 0.4 * 0.1 / RAMP_MM + 1e-12, "c {c}: {step}");
             c += 0.1;
         }
+    }
+
+    /// `"auto"` where the needle lags its bend: the whole way to the chord from one steering
+    /// length deep, never more than [`MAX_OFFSET_MM`] off the path; nothing where it
+    /// keeps up, nor for the paper's update; a fraction as given. An obstacle nearer that chord
+    /// than the path sends it back to 40 % of the way to the chord from the entry point.
+    #[test]
+    fn auto_straightens_from_one_steering_length_deep_unless_an_obstacle_is_in_the_way() {
+        let path = Scene::builtin("simple").unwrap().sampled_path().unwrap();
+        let auto = (StraightenSpec::Auto, StraightenFromSpec::Auto);
+        let qp = MethodSpec::Qp;
+        let s = Straightening::for_scene(&path, auto, qp, (true, 13.0), &[]);
+        assert_eq!((s.fraction, s.from, s.obstacle_limited), (1.0, 13.0, false));
+        let end = path.total_length();
+        // The largest offset of the shown point from the path, checking the bound on the way.
+        let largest = |s: &Straightening, shallow: f64| {
+            let mut c: f64 = 0.0;
+            let mut largest: f64 = 0.0;
+            while c <= end {
+                let offset = (s.point(&path, c) - path.at(c).0).norm();
+                assert!(offset <= MAX_OFFSET_MM + 0.01, "c {c}: {offset}");
+                if c <= path.approach + shallow {
+                    assert_eq!(offset, 0.0, "c {c}: the path itself while shallow");
+                }
+                largest = largest.max(offset);
+                c += 0.1;
+            }
+            largest
+        };
+        // The chord from 13 mm deep runs within 1.07 mm of the path: the whole way to it.
+        assert!((1.0..MAX_OFFSET_MM).contains(&largest(&s, 13.0)));
+        assert_eq!(s.lowest(), 1.0);
+        // The chord from the entry point runs 2 mm from it: held to the bound mid-way.
+        let whole = Straightening::new(&path, 1.0, 0.0, &[]);
+        assert!(largest(&whole, 0.0) > 1.45);
+        assert!(whole.lowest() < 0.8 && !whole.obstacle_limited);
+        assert_eq!(s.point(&path, end), path.at(end).0);
+        for none in [
+            Straightening::for_scene(&path, auto, qp, (false, 13.0), &[]),
+            Straightening::for_scene(&path, auto, MethodSpec::Paper, (true, 13.0), &[]),
+        ] {
+            assert_eq!(none.fraction, 0.0);
+            assert_eq!(none.point(&path, 40.0), path.at(40.0).0);
+        }
+        let given = (StraightenSpec::Fraction(0.25), StraightenFromSpec::Mm(5.0));
+        let g = Straightening::for_scene(&path, given, qp, (false, 13.0), &[]);
+        assert_eq!((g.fraction, g.from), (0.25, 5.0));
+        // A sphere beside the deep chord, on its side of the path, 3/4 of the way down.
+        let l = path.approach + 13.0 + 0.75 * (path.length() - 13.0);
+        let (p, chord) = (path.at(l).0, path.straightened(l, 1.0, 13.0));
+        let side = (chord - p).normalize();
+        let sphere = [ObstacleShape::Sphere {
+            center: p + side * 3.6,
+            radius: 3.0,
+        }];
+        let near = Straightening::for_scene(&path, auto, qp, (true, 13.0), &sphere);
+        assert_eq!(
+            (near.fraction, near.from),
+            (AUTO_FRACTION_NEAR_OBSTACLE, 0.0)
+        );
+        assert!(Straightening::new(&path, 1.0, 13.0, &sphere).obstacle_limited);
     }
 }

@@ -37,7 +37,8 @@ fn helix_half_held_at_its_clearance_margin_until_it_slipped_into_the_obstacle_no
 /// mm from the end, not blocked), and with the horizon the default gives this needle since
 /// 2026-12-05 (`inverse.qp_horizon = "auto"`: 3 mm) it ends 3.46 mm from the end, not blocked
 /// either, nor with the target straightened towards the path's chord (the default for this
-/// needle since 2026-12-07: 1.74 mm); so this test runs the update before all three
+/// needle since 2026-12-07: 1.74 mm; from one steering length deep, later that day: reached,
+/// 0.56 mm); so this test runs the update before all three
 /// (`inverse.qp_angle_damping_max = 21`, `inverse.qp_horizon = 0`, `inverse.straighten = 0`)
 /// to keep a needle that meets the margin.
 #[test]

@@ -364,18 +364,21 @@ fn print_text(s: &RunSummary) {
         println!("advisory: {a}");
     }
     if s.straighten > 0.0 {
-        let near = if s.straighten_lowest < s.straighten {
+        let lowest = if s.straighten_lowest < s.straighten {
             format!(
-                " ({:.0} % where the chord passes nearer an obstacle than the path)",
-                100.0 * s.straighten_lowest
+                ", down to {:.0} % where an obstacle or the {} mm bound on its offset from the path limits it",
+                100.0 * s.straighten_lowest,
+                needle_host::straighten::MAX_OFFSET_MM
             )
         } else {
             String::new()
         };
         println!(
             "the target shown to the controller is straightened {:.0} % of the way towards the \
-             path's chord{near} (inverse.straighten); errors are measured against the planned path",
-            100.0 * s.straighten
+             path's chord from {:.1} mm past the entry point{lowest} (inverse.straighten, \
+             inverse.straighten_from); errors are measured against the planned path",
+            100.0 * s.straighten,
+            s.straighten_from_mm
         );
     }
     if let Some(m) = &s.support_motion {

@@ -89,12 +89,17 @@ pub struct RunSummary {
     /// from the steering length under `"auto"` ([`crate::scene::HorizonSpec::horizon`]; 3 mm
     /// up to 18 mm of steering length, none from 21 mm). The paper's update does not use it.
     pub qp_horizon_mm: f64,
-    /// How far the target shown to the controller was straightened towards the path's chord:
-    /// `inverse.straighten` resolved (0.4 under `"auto"` for a needle that lags its path's
-    /// bend, the run's advisory; else 0) [-].
+    /// How far the target shown to the controller was straightened towards a chord of the
+    /// path: `inverse.straighten` resolved (under `"auto"`, for a needle that lags its path's
+    /// bend, the run's advisory: 1 towards the chord from one steering length deep, or 0.4
+    /// towards the chord from the entry point where an obstacle lies nearer the first; else
+    /// 0) [-].
     pub straighten: f64,
-    /// The lowest fraction along the path: lower than `straighten` where the path's chord
-    /// passes nearer an obstacle than the path itself, which the shown target is kept from [-].
+    /// Where that chord starts: path length past the entry point [mm].
+    pub straighten_from_mm: f64,
+    /// The lowest fraction along the path: lower than `straighten` where the chord passes
+    /// nearer an obstacle than the path itself, or where the shown point would be more than
+    /// [`crate::straighten::MAX_OFFSET_MM`] off the path [-].
     pub straighten_lowest: f64,
     /// What the plan allows but makes unlikely to succeed, one sentence each
     /// ([`crate::plan_check::advisories`]: today a bending path for a needle whose steering
@@ -402,6 +407,7 @@ impl Statistics {
             steering_length_mm: plan.steering_length_mm,
             qp_horizon_mm: plan.qp_horizon_mm,
             straighten: plan.straighten,
+            straighten_from_mm: plan.straighten_from_mm,
             straighten_lowest: plan.straighten_lowest,
             advisories: plan.advisories.clone(),
             provenance: crate::provenance::Provenance::now(),

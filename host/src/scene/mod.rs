@@ -428,12 +428,17 @@ pub struct InverseSpec {
     /// now) or `"auto"` (the default: [`HorizonSpec::horizon`] of the scene's steering length).
     #[serde(default)]
     pub qp_horizon: HorizonSpec,
-    /// How far the target shown to the `"qp"` update is straightened towards the path's chord
-    /// (the line from its entry point to its end): a fraction in [0, 1] (0: the planned path, 1:
-    /// the chord) or `"auto"` (the default: [`StraightenSpec::fraction`]). The errors are
-    /// measured against the planned path either way.
+    /// How far the target shown to the `"qp"` update is straightened towards a chord of the
+    /// path (the line from its point `straighten_from` past the entry point to its end): a
+    /// fraction in [0, 1] (0: the planned path, 1: the chord) or `"auto"` (the default:
+    /// [`crate::straighten::Straightening::for_scene`]). The errors are measured against the
+    /// planned path either way.
     #[serde(default)]
     pub straighten: StraightenSpec,
+    /// Where that chord starts: path length past the entry point [mm] (0: the entry point) or
+    /// `"auto"` (the default: one steering length).
+    #[serde(default)]
+    pub straighten_from: StraightenFromSpec,
     /// Re-plan a `"qp"` step that its confirming solve rejected, with the Jacobian corrected by
     /// the secant along the rejected step (default false).
     #[serde(default = "default_replan_rejected")]
@@ -503,6 +508,7 @@ impl Default for InverseSpec {
             max_entry_shift: None,
             qp_horizon: HorizonSpec::Auto,
             straighten: StraightenSpec::Auto,
+            straighten_from: StraightenFromSpec::Auto,
             replan_rejected: default_replan_rejected(),
             second_opinion: default_second_opinion(),
             qp_angle_damping_max: default_qp_angle_damping_max(),
@@ -729,6 +735,28 @@ fn serialize_number_or_auto<S: serde::Serializer>(v: Option<f64>, s: S) -> Resul
     }
 }
 
+/// `Serialize` and `Deserialize` of a setting that is `"auto"` (its `Auto` variant) or a number
+/// (its one-number variant), refused otherwise with `expected`.
+macro_rules! number_or_auto_spec {
+    ($ty:ident, $number:ident, $expected:expr) => {
+        impl Serialize for $ty {
+            fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+                let v = match self {
+                    Self::Auto => None,
+                    Self::$number(x) => Some(*x),
+                };
+                serialize_number_or_auto(v, s)
+            }
+        }
+
+        impl<'de> Deserialize<'de> for $ty {
+            fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+                Ok(number_or_auto(d, $expected)?.map_or(Self::Auto, Self::$number))
+            }
+        }
+    };
+}
+
 impl Serialize for NearRadiusSpec {
     fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
         match self {
@@ -808,79 +836,61 @@ impl HorizonSpec {
     }
 }
 
-impl Serialize for HorizonSpec {
-    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
-        let v = match self {
-            Self::Auto => None,
-            Self::Mm(r) => Some(*r),
-        };
-        serialize_number_or_auto(v, s)
-    }
-}
+number_or_auto_spec!(HorizonSpec, Mm, "expected a horizon [mm] or \"auto\"");
 
-impl<'de> Deserialize<'de> for HorizonSpec {
-    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
-        let v = number_or_auto(d, "expected a horizon [mm] or \"auto\"")?;
-        Ok(v.map_or(Self::Auto, Self::Mm))
-    }
-}
-
-/// How far the target shown to the `"qp"` update is straightened towards the path's chord
-/// (`inverse.straighten`; [`SampledPath::straightened`]).
+/// How far the target shown to the `"qp"` update is straightened towards a chord of the path
+/// (`inverse.straighten`; [`crate::straighten::Straightening::for_scene`]).
 #[derive(Clone, Copy, Debug, PartialEq, Default)]
 pub enum StraightenSpec {
-    /// [`STRAIGHTEN_AUTO`] where the needle lags its path's bend
-    /// ([`crate::plan_check::lags_its_bend`]: the run's advisory), else none.
+    /// Where the needle lags its path's bend ([`crate::plan_check::lags_its_bend`]: the run's
+    /// advisory) the whole way to the chord from one steering length deep, or part of the way
+    /// to the chord from the entry point near an obstacle
+    /// ([`crate::straighten::Straightening::for_scene`]); elsewhere none.
     #[default]
     Auto,
     /// This fraction [0, 1] whatever the needle, gel and path.
     Fraction(f64),
 }
 
-/// `inverse.straighten = "auto"`: the fraction for a needle that lags its path's bend.
-pub const STRAIGHTEN_AUTO: f64 = 0.4;
+number_or_auto_spec!(
+    StraightenSpec,
+    Fraction,
+    "expected a fraction in [0, 1] or \"auto\""
+);
 
-impl StraightenSpec {
-    /// The fraction for the `"qp"` update on a path the needle lags (`lags_its_bend`:
-    /// [`crate::plan_check::lags_its_bend`]). `Auto`: [`STRAIGHTEN_AUTO`] there, else 0 — where
-    /// the gel holds the shaft, the tip can be turned while it is shallow and hardly at all
-    /// deep in the gel, so it is asked for the chord's heading early rather than for a bend it
-    /// cannot make late (`docs/benchmark.md`, "The path straightened where the needle lags
-    /// its bend"). The paper's update is always shown the planned path.
+/// Where the chord that the shown target is straightened towards starts
+/// (`inverse.straighten_from`): path length past the entry point.
+#[derive(Clone, Copy, Debug, PartialEq, Default)]
+pub enum StraightenFromSpec {
+    /// One steering length: the depth down to which the joints still turn the tip.
+    #[default]
+    Auto,
+    /// This path length [mm] past the entry point (0: the chord from the entry point).
+    Mm(f64),
+}
+
+number_or_auto_spec!(
+    StraightenFromSpec,
+    Mm,
+    "expected a path length [mm] or \"auto\""
+);
+
+impl StraightenFromSpec {
+    /// The chord's start [mm] past the entry point for a needle of `steering_length` [mm].
     ///
     /// # Example
     /// ```
-    /// use needle_host::scene::{MethodSpec, StraightenSpec};
+    /// use needle_host::scene::StraightenFromSpec;
     ///
-    /// assert_eq!(StraightenSpec::Auto.fraction(MethodSpec::Qp, true), 0.4); // thin, stiff gel
-    /// assert_eq!(StraightenSpec::Auto.fraction(MethodSpec::Qp, false), 0.0);
-    /// assert_eq!(StraightenSpec::Auto.fraction(MethodSpec::Paper, true), 0.0);
-    /// assert_eq!(StraightenSpec::Fraction(1.0).fraction(MethodSpec::Qp, false), 1.0);
+    /// assert_eq!(StraightenFromSpec::Auto.from(13.0), 13.0);
+    /// assert_eq!(StraightenFromSpec::Mm(0.0).from(13.0), 0.0);
     /// ```
-    pub fn fraction(self, method: MethodSpec, lags_its_bend: bool) -> f64 {
-        match (self, method) {
-            (_, MethodSpec::Paper) => 0.0,
-            (Self::Fraction(b), _) => b,
-            (Self::Auto, _) if lags_its_bend => STRAIGHTEN_AUTO,
-            (Self::Auto, _) => 0.0,
+    pub fn from(self, steering_length: f64) -> f64 {
+        match self {
+            Self::Mm(d) => d,
+            Self::Auto if steering_length.is_finite() => steering_length,
+            Self::Auto => 0.0,
         }
-    }
-}
-
-impl Serialize for StraightenSpec {
-    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
-        let v = match self {
-            Self::Auto => None,
-            Self::Fraction(b) => Some(*b),
-        };
-        serialize_number_or_auto(v, s)
-    }
-}
-
-impl<'de> Deserialize<'de> for StraightenSpec {
-    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
-        let v = number_or_auto(d, "expected a fraction in [0, 1] or \"auto\"")?;
-        Ok(v.map_or(Self::Auto, Self::Fraction))
     }
 }
 

@@ -236,24 +236,30 @@ impl SampledPath {
     }
 
     /// The point at arc length `l` (from the start tip) of the path straightened by `beta` ∈
-    /// [0, 1] towards its chord, the straight line from the entry point to the path's end:
-    /// `P(l) + beta (C(u) − P(l))`, `C(u)` the chord's point at the same fraction `u` of the
-    /// path's length [mm]. The approach, the entry point and the end are the path's own; `beta`
-    /// = 0 is the path, 1 the chord.
+    /// [0, 1] towards its chord from `from` [mm] of path past the entry point: the straight
+    /// line from the path's point there to the path's end. `P(l) + beta (C(u) − P(l))`, `C(u)`
+    /// the chord's point at the same fraction `u` of the path's length past `from`. The
+    /// approach, the path up to `from` and the end are the path's own; `beta` = 0 is the path,
+    /// 1 the chord; `from` = 0 the chord from the entry point (at or past the path's length:
+    /// the path itself).
     ///
     /// A needle whose gel holds its shaft (a short steering length) can turn its tip while it is
-    /// shallow and hardly at all deep in the gel: it can follow a path's chord, not a bend that
-    /// tightens with depth. The controller is shown the straightened path
-    /// (`inverse.straighten`); the errors are still measured against the planned one.
-    pub fn straightened(&self, l: f64, beta: f64) -> Vector3<f64> {
+    /// shallow and hardly at all deep in the gel: it can follow the path while shallow and a
+    /// straight line after, not a bend that goes on deep. The controller is shown the
+    /// straightened path (`inverse.straighten`, `inverse.straighten_from`); the errors are
+    /// still measured against the planned one.
+    pub fn straightened(&self, l: f64, beta: f64, from: f64) -> Vector3<f64> {
         let p = self.at(l).0;
         let len = self.length();
-        if l <= self.approach || beta == 0.0 || len <= 0.0 {
+        let from = from.max(0.0);
+        let start = self.approach + from;
+        if l <= start || beta == 0.0 || from >= len {
             return p;
         }
-        let u = ((l - self.approach) / len).min(1.0);
+        let u = ((l - start) / (len - from)).min(1.0);
+        let a = self.at(start).0;
         let end = self.points[self.points.len() - 1];
-        let chord = self.entry() + u * (end - self.entry());
+        let chord = a + u * (end - a);
         p + beta * (chord - p)
     }
 

@@ -591,57 +591,62 @@ fn qp_horizon_is_auto_by_default_and_follows_the_steering_length() {
     assert!(e.to_string().contains("qp_horizon"), "{e}");
 }
 
-/// `SampledPath::straightened`: the planned path at 0, the chord from the entry point to the
-/// end at 1, in between at a fraction; the approach, the entry point and the end unchanged.
+/// `SampledPath::straightened`: the planned path at 0, the chord from the path's point
+/// `from` past the entry point to the end at 1, in between at a fraction; the approach, the
+/// path up to `from` and the end unchanged.
 #[test]
 fn straightened_path_runs_from_the_path_to_its_chord() {
     // The simple benchmark's path: x = 300 + 8 s², bending towards +x.
     let bent = Scene::builtin("simple").unwrap();
     let p = bent.sampled_path().unwrap();
-    let (entry, end) = (p.entry(), p.at(p.total_length()).0);
-    for beta in [0.0, 0.4, 1.0] {
-        // The approach in the air, the entry point and the end are the path's own.
-        for l in [0.0, 5.0, p.approach, p.total_length(), 1e9] {
+    let end = p.at(p.total_length()).0;
+    for from in [0.0, 20.0] {
+        let start = p.at(p.approach + from).0;
+        for beta in [0.0, 0.4, 1.0] {
+            // The approach in the air, the path down to `from` and the end are the path's own.
+            for l in [
+                0.0,
+                5.0,
+                p.approach,
+                p.approach + from,
+                p.total_length(),
+                1e9,
+            ] {
+                assert!(
+                    (p.straightened(l, beta, from) - p.at(l).0).norm() < 1e-12,
+                    "{l} {beta} {from}"
+                );
+            }
+        }
+        for k in 1..10 {
+            let u = f64::from(k) / 10.0;
+            let l = p.approach + from + (p.length() - from) * u;
+            let (at, chord) = (p.at(l).0, start + (end - start) * u);
+            assert_eq!(p.straightened(l, 0.0, from), at);
+            assert!((p.straightened(l, 1.0, from) - chord).norm() < 1e-9, "{l}");
+            let mid = p.straightened(l, 0.4, from);
+            assert!((mid - (at + 0.4 * (chord - at))).norm() < 1e-9, "{l}");
+            // The path bends towards +x; its chords lie beyond it, so the shown point does too.
             assert!(
-                (p.straightened(l, beta) - p.at(l).0).norm() < 1e-12,
-                "{l} {beta}"
+                chord.x > at.x && mid.x > at.x && mid.x < chord.x,
+                "{l}: {at} {mid} {chord}"
             );
         }
     }
-    assert!((p.straightened(p.approach, 1.0) - entry).norm() < 1e-12);
-    for k in 1..10 {
-        let l = p.approach + p.length() * f64::from(k) / 10.0;
-        let (at, chord) = (p.at(l).0, entry + (end - entry) * f64::from(k) / 10.0);
-        assert_eq!(p.straightened(l, 0.0), at);
-        assert!((p.straightened(l, 1.0) - chord).norm() < 1e-9, "{l}");
-        let mid = p.straightened(l, 0.4);
-        assert!((mid - (at + 0.4 * (chord - at))).norm() < 1e-9, "{l}");
-        // The path bends towards +x; its chord lies beyond it, so the shown point does too.
-        assert!(
-            chord.x > at.x && mid.x > at.x && mid.x < chord.x,
-            "{l}: {at} {mid} {chord}"
-        );
-    }
+    // Shallower than `from` the path itself; from beyond the path's end, the path everywhere.
+    let l = p.approach + 10.0;
+    assert_eq!(p.straightened(l, 1.0, 20.0), p.at(l).0);
+    assert_eq!(p.straightened(l + 30.0, 1.0, 1e3), p.at(l + 30.0).0);
 }
 
-/// `inverse.straighten`: `"auto"` by default, 0.4 for the `"qp"` update where the needle lags
-/// its path's bend (the advisory's condition), none elsewhere and never for the paper's
-/// update; a fraction is taken as given; outside [0, 1] or another word is refused naming the
-/// field.
+/// `inverse.straighten` and `inverse.straighten_from`: `"auto"` by default; a fraction in
+/// [0, 1] and a length ≥ 0 are taken as given; anything else is refused naming the field
+/// (what `"auto"` resolves to: `straighten::tests`).
 #[test]
-fn straighten_is_auto_by_default_and_only_where_the_needle_lags_its_bend() {
+fn straighten_is_auto_by_default_and_refused_outside_its_range() {
     let complex = Scene::builtin("complex").unwrap();
-    assert_eq!(
-        complex.inverse.straighten,
-        StraightenSpec::Auto,
-        "the default"
-    );
-    assert_eq!(
-        StraightenSpec::Auto.fraction(MethodSpec::Qp, true),
-        STRAIGHTEN_AUTO
-    );
-    assert_eq!(StraightenSpec::Auto.fraction(MethodSpec::Qp, false), 0.0);
-    assert_eq!(StraightenSpec::Auto.fraction(MethodSpec::Paper, true), 0.0);
+    assert_eq!(complex.inverse.straighten, StraightenSpec::Auto);
+    assert_eq!(complex.inverse.straighten_from, StraightenFromSpec::Auto);
     assert!(crate::plan_check::lags_its_bend(13.0, 11.5));
     assert!(!crate::plan_check::lags_its_bend(26.5, 11.5), "long ℓ");
     assert!(
@@ -649,19 +654,35 @@ fn straighten_is_auto_by_default_and_only_where_the_needle_lags_its_bend() {
         "a straight path"
     );
     let set = |o: &[(&str, &str)]| overridden(&complex, o);
-    let fixed = set(&[("inverse.straighten", "0.25")]).unwrap();
+    let fixed = set(&[
+        ("inverse.straighten", "0.25"),
+        ("inverse.straighten_from", "7.5"),
+    ])
+    .unwrap();
     assert_eq!(fixed.inverse.straighten, StraightenSpec::Fraction(0.25));
-    assert_eq!(
-        fixed.inverse.straighten.fraction(MethodSpec::Qp, false),
-        0.25
-    );
-    let auto = set(&[("inverse.straighten", "\"auto\"")]).unwrap();
+    assert_eq!(fixed.inverse.straighten_from, StraightenFromSpec::Mm(7.5));
+    assert_eq!(fixed.inverse.straighten_from.from(26.5), 7.5);
+    assert_eq!(StraightenFromSpec::Auto.from(26.5), 26.5);
+    let auto = set(&[
+        ("inverse.straighten", "\"auto\""),
+        ("inverse.straighten_from", "\"auto\""),
+    ])
+    .unwrap();
     assert_eq!(auto.inverse.straighten, StraightenSpec::Auto);
-    for bad in ["-0.1", "1.5", "nan"] {
-        let e = set(&[("inverse.straighten", bad)]).unwrap_err();
-        assert_eq!(e.field, "inverse.straighten", "{bad}");
+    assert_eq!(auto.inverse.straighten_from, StraightenFromSpec::Auto);
+    for (field, bad) in [
+        ("inverse.straighten", "-0.1"),
+        ("inverse.straighten", "1.5"),
+        ("inverse.straighten", "nan"),
+        ("inverse.straighten_from", "-1.0"),
+        ("inverse.straighten_from", "nan"),
+    ] {
+        let e = set(&[(field, bad)]).unwrap_err();
+        assert_eq!(e.field, field, "{bad}");
     }
-    let e = set(&[("inverse.straighten", "\"more\"")]).unwrap_err();
-    assert!(e.to_string().contains("\"auto\""), "{e}");
-    assert!(e.to_string().contains("straighten"), "{e}");
+    for field in ["inverse.straighten", "inverse.straighten_from"] {
+        let e = set(&[(field, "\"more\"")]).unwrap_err();
+        assert!(e.to_string().contains("\"auto\""), "{e}");
+        assert!(e.to_string().contains("straighten"), "{e}");
+    }
 }

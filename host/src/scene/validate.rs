@@ -4,7 +4,8 @@
 //! it can only be a typo or an attack (a needle of 10³⁰⁰ MPa, a time step of 10⁻³⁰⁰ s).
 
 use super::{
-    FAR_RESIDUAL_MAX, HorizonSpec, NearRadiusSpec, PoseSpec, SampledPath, Scene, StraightenSpec,
+    FAR_RESIDUAL_MAX, HorizonSpec, NearRadiusSpec, PoseSpec, SampledPath, Scene,
+    StraightenFromSpec, StraightenSpec,
 };
 use crate::free_motion::LAG_ROTATION_LIMIT;
 use needle_core::kinematics::{Kinematics, Robot};
@@ -435,6 +436,9 @@ impl Scene {
         }
         if let StraightenSpec::Fraction(b) = v.straighten {
             within("inverse.straighten", b, 0.0, 1.0, "[-]")?;
+        }
+        if let StraightenFromSpec::Mm(d) = v.straighten_from {
+            non_negative("inverse.straighten_from", d, "[mm]")?;
         }
         non_negative(
             "inverse.qp_angle_damping_max",
