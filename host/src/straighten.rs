@@ -64,7 +64,7 @@ impl Straightening {
     /// [`AUTO_FRACTION`] of the way towards the chord from `from` (`"auto"`: one steering
     /// length deep), unless an obstacle lies nearer that chord than the path: then
     /// [`AUTO_FRACTION_NEAR_OBSTACLE`] towards the chord from the entry point
-    /// (`docs/benchmark.md`, "The path straightened from one steering length deep").
+    /// (`docs/benchmark.md`, "The path from one steering length deep").
     pub fn for_scene(
         path: &SampledPath,
         (spec, from): (StraightenSpec, StraightenFromSpec),
