@@ -58,7 +58,8 @@ pub struct Plan {
     /// Where that chord starts: path length past the entry point [mm].
     pub straighten_from_mm: f64,
     /// The lowest fraction along the path: lower than [`Plan::straighten`] where the chord
-    /// passes nearer an obstacle than the path ([`crate::straighten::Straightening`]) [-].
+    /// passes nearer an obstacle than the path, or the shown point would be more than
+    /// [`crate::straighten::MAX_OFFSET_MM`] off it ([`crate::straighten::Straightening`]) [-].
     pub straighten_lowest: f64,
     /// What the plan allows but makes unlikely to succeed
     /// ([`crate::plan_check::advisories`]); empty when nothing is.

@@ -127,8 +127,10 @@ impl Straightening {
                 };
                 let shown = |b: f64| path.straightened(c, b, from);
                 let offset = levels().find(|&b| near(&shown(b))).unwrap_or(0.0);
+                // Below `offset` every level is near enough: only the obstacles are left.
                 let b = levels()
-                    .find(|&b| near(&shown(b)) && clear(&shown(b)))
+                    .filter(|&b| b <= offset)
+                    .find(|&b| clear(&shown(b)))
                     .unwrap_or(0.0);
                 obstacle_limited |= b < offset;
                 b
