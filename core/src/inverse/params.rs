@@ -201,6 +201,15 @@ pub struct InverseParams {
     /// clearance (249 runs: 0.090 → 0.185 mm) with the same targets reached
     /// (`docs/benchmark.md`).
     pub settling_margin: bool,
+    /// Weight `w_s` of the spin of the needle about its own axis in every stage of the
+    /// [`StepMethod::Qp`] update [mm/rad] (default 0: off): each stage adds
+    /// `w_s² (ẑᵀ J_ω Δq)²`, `ẑ` the tool's axis (the needle's) and `J_ω` the tool's angular
+    /// Jacobian. A round needle's spin about its axis moves neither its tip nor its angles, so
+    /// nothing but the damping holds it. Measured with 100 on 585 suite runs: half as many runs
+    /// put a joint at a limit (69 → 39) and the public `helix_half` tracks closer (e_mean
+    /// 1.61 → 0.91 mm), but 5 targets fewer are reached, so it is left off
+    /// (`docs/benchmark.md`, "The needle's spin held").
+    pub qp_spin_weight: f64,
 }
 
 // SAFETY: `#[repr(u8)]` and the variant `Solve` has the discriminant 0.
@@ -237,6 +246,7 @@ crate::zeroed::impl_zeroable!(InverseParams {
     second_opinion,
     qp_angle_damping_max,
     settling_margin,
+    qp_spin_weight,
 });
 
 impl Default for InverseParams {
@@ -275,6 +285,7 @@ impl Default for InverseParams {
             second_opinion: false,
             qp_angle_damping_max: 5.0,
             settling_margin: true,
+            qp_spin_weight: 0.0,
         }
     }
 }
@@ -314,6 +325,7 @@ impl InverseParams {
             (nonneg(self.aim_ahead), "aim_ahead"),
             (nonneg(self.qp_horizon), "qp_horizon"),
             (nonneg(self.qp_angle_damping_max), "qp_angle_damping_max"),
+            (nonneg(self.qp_spin_weight), "qp_spin_weight"),
         ];
         for (ok, name) in checks {
             if !ok {

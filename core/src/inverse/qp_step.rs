@@ -9,6 +9,7 @@
 //! stage 3   (N > 6 only) Δq = Δq₂ + P₃ y, P₃ the projector on the null space of [J_e; w √h Φ1;
 //!           w √(1 − k) Φ2], minimise w² |P₃ y − g|² + ε² |y|², g_i = −κ x_i v_i dt with
 //!           x_i = (q_i − mid_i) / half range_i, κ = InverseParams::limit_avoidance
+//! + every stage   w_s² (ẑᵀ J_ω Δq)²   the needle's spin about its own axis (w_s > 0 only)
 //! rows      max(lower_i − q_i, −v_i dt) ≤ Δq_i ≤ min(upper_i − q_i, v_i dt)   joint limits and speeds
 //!           |(J_tool,v Δq)_j| ≤ max_base_step,  j = x, y, z                     trust region (each axis)
 //!           d_k + G_k Δq ≥ clearance_margin                                    obstacle k
@@ -19,7 +20,10 @@
 //! the tip along its heading; `J_e` its derivative, from the same differences), `φ1`, `φ2` the
 //! rotation vectors whose norms are the paper's angles θ1 (tip direction to the path's tangent)
 //! and θ2 (needle base to the entry point), `k` the paper's blend, `h` = 1
-//! ([`super::InverseParams::qp_heading`], the default) or `k` (the paper's blend), `w` [`super::InverseParams::qp_angle_weight`]; `J_e`, `Φ1`, `Φ2` and
+//! ([`super::InverseParams::qp_heading`], the default) or `k` (the paper's blend), `w` [`super::InverseParams::qp_angle_weight`]; `ẑ` the tool's (the needle's)
+//! axis, `J_ω` the tool's angular Jacobian, `w_s` [`super::InverseParams::qp_spin_weight`] (a
+//! round needle's spin moves neither its tip nor its angles, so without the term only the
+//! damping holds it; 0 by default, the term left out); `J_e`, `Φ1`, `Φ2` and
 //! `G_k = ∂d_k/∂q` from the same finite-difference columns as the paper's `J`; `ε` as in the
 //! paper's update (raised near a singularity; in stage 2's `ε² |y|²` by at most
 //! [`super::InverseParams::qp_angle_damping_max`]). `P` projects on the (damped) null space of `J_e`,
@@ -78,6 +82,16 @@ struct RowRanges {
     trust: (usize, usize),
     /// First clearance row, one past the last.
     clearance: (usize, usize),
+}
+
+/// Rows from the tool's Jacobian, the same in every stage.
+#[derive(Default)]
+struct ToolRows<const N: usize> {
+    /// The translational rows `J_tool,v` (the trust region), with a finite `max_base_step`.
+    trust: Option<SMatrix<f64, 3, N>>,
+    /// `ẑᵀ J_ω`: the needle's spin about its axis per unit `Δq`, with a positive
+    /// `qp_spin_weight`.
+    spin: Option<[f64; N]>,
 }
 
 /// What a stage minimises.
@@ -211,8 +225,11 @@ impl<const M: usize, const N: usize> Controller<M, N> {
         let eps2 = self.damping_squared(jac, report);
         let mut qp = Qp::<N, QP_ROWS>::new();
         let mut ranges = RowRanges::default();
+        let tool = self.tool_rows(frame);
         let solve = |qp: &mut Qp<N, QP_ROWS>, relaxed, stage: &Stage<N>, ranges: &mut RowRanges| {
-            self.solve_program(qp, frame, jac, clear, obj0, eps2, relaxed, stage, ranges)
+            self.solve_program(
+                qp, frame, jac, clear, obj0, eps2, relaxed, stage, &tool, ranges,
+            )
         };
         // Stage 1: the tip's position.
         let first = Stage::identity();
@@ -290,6 +307,7 @@ impl<const M: usize, const N: usize> Controller<M, N> {
         eps2: f64,
         relaxed: bool,
         stage: &Stage<N>,
+        tool: &ToolRows<N>,
         ranges: &mut RowRanges,
     ) -> Result<(), QpError> {
         let p = &self.params;
@@ -336,6 +354,10 @@ impl<const M: usize, const N: usize> Controller<M, N> {
             eps2
         };
         qp.add_diagonal(2.0 * eps2);
+        // The needle's spin about its own axis, which neither the tip nor the angles hold.
+        if let Some(spin) = &tool.spin {
+            stage.square(qp, spin, 0.0, p.qp_spin_weight * p.qp_spin_weight);
+        }
         for i in 0..N {
             let l = &self.robot.limits()[i];
             let v = l.max_speed * frame.dt;
@@ -357,8 +379,7 @@ impl<const M: usize, const N: usize> Controller<M, N> {
             }
         }
         let start = qp.rows();
-        if p.max_base_step.is_finite() {
-            let (jt, _) = self.robot.jacobian_tool(&frame.q);
+        if let Some(jt) = &tool.trust {
             for j in 0..3 {
                 for (i, x) in row.iter_mut().enumerate() {
                     *x = jt[(j, i)];
@@ -379,6 +400,29 @@ impl<const M: usize, const N: usize> Controller<M, N> {
         }
         ranges.clearance = (start, qp.rows());
         qp.solve().map(|_| ())
+    }
+
+    /// The rows of the tool's Jacobian the stages need: the trust region's (with a finite
+    /// `max_base_step`) and the needle's spin about its axis (with a positive `qp_spin_weight`).
+    fn tool_rows(&self, frame: &ComplianceFrame<M, N>) -> ToolRows<N> {
+        let p = &self.params;
+        let spin_on = p.qp_spin_weight > 0.0;
+        if !spin_on && !p.max_base_step.is_finite() {
+            return ToolRows::default();
+        }
+        let (jt, pose) = self.robot.jacobian_tool(&frame.q);
+        let z = pose.z_axis();
+        let mut spin = [0.0; N];
+        for (i, x) in spin.iter_mut().enumerate() {
+            *x = z[0] * jt[(3, i)] + z[1] * jt[(4, i)] + z[2] * jt[(5, i)];
+        }
+        ToolRows {
+            trust: p
+                .max_base_step
+                .is_finite()
+                .then(|| jt.fixed_rows::<3>(0).into_owned()),
+            spin: spin_on.then_some(spin),
+        }
     }
 
     /// The step of stage 3: each joint towards the middle of its range, `gain` times its

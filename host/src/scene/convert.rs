@@ -229,6 +229,7 @@ impl Scene {
             resume_held: v.resume_held,
             limit_avoidance: v.limit_avoidance,
             settling_margin: v.settling_margin,
+            qp_spin_weight: v.qp_spin_weight,
             jacobian: match v.jacobian {
                 super::JacobianSpec::Solve => JacobianMode::Solve,
                 super::JacobianSpec::Linearized => JacobianMode::Linearized,

@@ -109,6 +109,10 @@ pub(super) fn default_second_opinion() -> bool {
 pub(super) fn default_qp_angle_damping_max() -> f64 {
     InverseParams::default().qp_angle_damping_max
 }
+
+pub(super) fn default_qp_spin_weight() -> f64 {
+    InverseParams::default().qp_spin_weight
+}
 pub(super) fn default_resume_held() -> bool {
     InverseParams::default().resume_held
 }

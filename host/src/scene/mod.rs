@@ -466,6 +466,10 @@ pub struct InverseSpec {
     /// against the steps' predictions (the gel settling, the needle ringing at held joints).
     #[serde(default = "default_settling_margin")]
     pub settling_margin: bool,
+    /// Weight of the needle's spin about its own axis in every stage of the `"qp"` update
+    /// (0: off) [mm/rad].
+    #[serde(default = "default_qp_spin_weight")]
+    pub qp_spin_weight: f64,
 }
 
 /// How the inverse controller chooses the joint update.
@@ -515,6 +519,7 @@ impl Default for InverseSpec {
             resume_held: default_resume_held(),
             limit_avoidance: default_limit_avoidance(),
             settling_margin: default_settling_margin(),
+            qp_spin_weight: default_qp_spin_weight(),
         }
     }
 }

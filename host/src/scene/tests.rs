@@ -483,6 +483,7 @@ fn the_update_method_clearance_margin_and_qp_angle_weight_reach_the_core_and_are
     assert!(s.inverse_params().settling_margin, "the default");
     assert!(!s.inverse_params().second_opinion, "the default");
     assert_eq!(s.inverse_params().qp_angle_damping_max, 5.0, "the default");
+    assert_eq!(s.inverse_params().qp_spin_weight, 0.0, "the default");
     let o = s
         .with_overrides(&[
             ("inverse.replan_rejected".into(), "true".into()),
@@ -494,8 +495,10 @@ fn the_update_method_clearance_margin_and_qp_angle_weight_reach_the_core_and_are
             ("inverse.clearance_margin".into(), "0.5".into()),
             ("inverse.qp_angle_weight".into(), "3".into()),
             ("inverse.qp_heading".into(), "false".into()),
+            ("inverse.qp_spin_weight".into(), "100".into()),
         ])
         .expect("overrides");
+    assert_eq!(o.inverse_params().qp_spin_weight, 100.0);
     assert!(!o.inverse_params().qp_heading);
     assert!(o.inverse_params().replan_rejected);
     assert!(o.inverse_params().second_opinion);
@@ -517,6 +520,15 @@ fn the_update_method_clearance_margin_and_qp_angle_weight_reach_the_core_and_are
         .with_overrides(&[("inverse.qp_angle_damping_max".into(), "-5".into())])
         .unwrap_err();
     assert_eq!(e.field, "inverse.qp_angle_damping_max");
+    for bad in ["-1", "nan", "\"high\""] {
+        let e = s
+            .with_overrides(&[("inverse.qp_spin_weight".into(), bad.into())])
+            .unwrap_err();
+        assert!(
+            e.to_string().contains("inverse.qp_spin_weight"),
+            "{bad}: {e}"
+        );
+    }
     let e = s
         .with_overrides(&[("inverse.method".into(), "\"newton\"".into())])
         .unwrap_err();

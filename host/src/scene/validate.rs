@@ -445,6 +445,7 @@ impl Scene {
             v.qp_angle_damping_max,
             "[mm/rad]",
         )?;
+        non_negative("inverse.qp_spin_weight", v.qp_spin_weight, "[mm/rad]")?;
         within(
             "inverse.limit_avoidance",
             v.limit_avoidance,
