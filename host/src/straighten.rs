@@ -177,6 +177,20 @@ impl Straightening {
         self.table.iter().copied().fold(self.fraction, f64::min)
     }
 
+    /// The rest distance between the shown points at arc lengths `c` and `c + h` [mm], at least
+    /// `h / 10`: the target tangent shown to the controller is their difference quotient over
+    /// it, a unit vector at rest. Over the planned path it is about `h`; where the path is
+    /// straightened it is not (a chord is shorter than the bend it replaces, and the fraction
+    /// varies along the path), and a quotient over `h` would weigh the tangent against the
+    /// tip's error differently from one part of the path to the next; past the path's end the
+    /// second point stops, and the quotient over the shorter distance still has unit length
+    /// down to the last `h / 10`.
+    pub fn span(&self, path: &SampledPath, c: f64, h: f64) -> f64 {
+        (self.point(path, c + h) - self.point(path, c))
+            .norm()
+            .max(0.1 * h)
+    }
+
     /// The point shown to the controller at arc length `c` ([`SampledPath::straightened`] by
     /// [`Straightening::at`]).
     pub fn point(&self, path: &SampledPath, c: f64) -> Vector3<f64> {
@@ -293,5 +307,33 @@ mod tests {
             (AUTO_FRACTION_NEAR_OBSTACLE, 0.0)
         );
         assert!(Straightening::new(&path, 1.0, 13.0, &sphere).obstacle_limited);
+    }
+
+    /// The target tangent shown to the controller is the shown points' difference quotient over
+    /// their rest distance ([`Straightening::span`]): of unit length on the planned path, on the
+    /// chord from the entry point held to the offset bound (where the shown point does not move
+    /// 1 mm per mm of path), and up to the path's end; a quotient over the 1 mm of path alone is
+    /// off unit length by more than 5 % on the straightened path.
+    #[test]
+    fn shown_tangent_has_unit_length_where_the_path_is_straightened() {
+        let path = Scene::builtin("simple").unwrap().sampled_path().unwrap();
+        let whole = Straightening::new(&path, 1.0, 0.0, &[]);
+        let none = Straightening::default();
+        let (h, end) = (1.0, path.total_length());
+        let mut off_unit: f64 = 0.0;
+        let mut c = path.approach;
+        while c < end - 0.1 * h {
+            for s in [&whole, &none] {
+                let d = s.point(&path, c + h) - s.point(&path, c);
+                let t = d / s.span(&path, c, h);
+                assert!((t.norm() - 1.0).abs() < 1e-12, "c {c}: |t| {}", t.norm());
+            }
+            let d = whole.point(&path, c + h) - whole.point(&path, c);
+            off_unit = off_unit.max((d.norm() / h - 1.0).abs());
+            c += 0.1;
+        }
+        assert!(off_unit > 0.05, "{off_unit}");
+        // At the end the two points meet: the span stops at a tenth of the step.
+        assert_eq!(whole.span(&path, end, h), 0.1 * h);
     }
 }
