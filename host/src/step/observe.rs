@@ -307,9 +307,9 @@ fn gel_observation(map: PointMap, free: Vector3<f64>) -> Observation {
 }
 
 /// The target point and tangent shown to the controller ([`World::shown_target_embedding`]):
-/// embedded in the gel (the tangent as the difference quotient over [`TANGENT_STEP`] of path,
-/// divided by the two points' distance at rest, [`crate::straighten::Straightening::span`]: a unit vector in the
-/// rest gel, whether or not the shown path is straightened) once both
+/// embedded in the gel (the tangent as the difference of the points [`TANGENT_STEP`] of path
+/// apart over [`crate::straighten::Straightening::span`]: a unit vector at rest where the shown
+/// path is straightened) once both
 /// are inside it, else the rest path's, carried by the support's
 /// displacement (fixed in the world without a support motion).
 fn target_observations<const N: usize>(
