@@ -324,6 +324,7 @@ pub fn step_params(scene: &Scene) -> StepParams {
         dt: scene.robot.dt,
         max_base_step: scene.inverse.max_base_step,
         max_entry_shift: scene.inverse.max_entry_shift.unwrap_or(f64::INFINITY),
+        entry_tilt: scene.inverse.entry_tilt.angle(i.surface_friction),
     }
 }
 

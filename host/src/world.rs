@@ -97,12 +97,19 @@ pub struct World<const N: usize = 6> {
     rest_locator: TetLocator,
     /// The entry point (planned before puncture, actual after), embedded in the gel.
     pub entry: Embedded,
+    /// The rest surface's outward unit normal at the planned entry point.
+    pub entry_normal: Vector3<f64>,
     /// Obstacles embedded in the gel.
     pub obstacles: Vec<Obstacle>,
     /// Whether the tip has punctured the surface.
     pub punctured: bool,
     /// Whether the tip pushed on the surface in the last step (contact force > 0).
     pub in_contact: bool,
+    /// Whether the tip has slid on the surface since it touched it (its friction force on the
+    /// Coulomb cone's boundary in a step before puncture); cleared at puncture. While set, the
+    /// heading shown to the controller is turned into the cone ([`crate::step::StepParams`]'s
+    /// `entry_tilt`).
+    pub tip_slid: bool,
     /// Sliding points, oldest first.
     pub sliding: Vec<SlidingPoint>,
     pub(crate) next_sliding_id: usize,
@@ -242,6 +249,9 @@ impl<const N: usize> World<N> {
             })
             .collect::<Result<Vec<_>, _>>()?;
         let surface = mesh.surface_triangles();
+        let entry_normal = crate::proximity::SurfaceProjector::new(rest, &surface)
+            .project(rest, &surface, &path.entry(), f64::MAX)
+            .map_or_else(Vector3::z, |h| h.smooth_normal);
         let r_off = node_frame_offset(&needle.axis());
         Ok(Self {
             robot,
@@ -252,9 +262,11 @@ impl<const N: usize> World<N> {
             surface,
             rest_locator,
             entry,
+            entry_normal,
             obstacles,
             punctured: false,
             in_contact: false,
+            tip_slid: false,
             sliding: Vec::new(),
             next_sliding_id: 0,
             last_sliding_depth: 0.0,

@@ -143,3 +143,33 @@ fn bend_x_seed777_late_bend_reaches_with_the_chord_from_one_steering_length() {
         "the chord from one steering length brought the tip nearer the target"
     );
 }
+
+/// `tilt_large` of seed 808: a needle tilted 22° from the normal of a 23 kPa gel, pushed along
+/// its heading, slid on the surface (μ_s = 0.3: the friction cone's half-angle is 16.7°) and
+/// punctured 4.23 mm from its target; the tip then ran 4.1 mm off the path: `left_path`. Once
+/// the tip slides off its target before puncture, the heading shown to the controller is held
+/// within the friction cone (`inverse.entry_tilt = "auto"`) until it punctures.
+#[test]
+#[ignore = "two insertions of 670 steps (release, ~10 s): run with --include-ignored"]
+fn tilt_large_seed808_sliding_before_puncture_is_held_within_the_friction_cone() {
+    use needle_host::run::Outcome;
+    let auto = run_kept("tilt_large_seed808.toml");
+    let never = run_kept_with("tilt_large_seed808.toml", &[("inverse.entry_tilt", "2.0")]);
+    for (what, s) in [("auto", &auto), ("never turned", &never)] {
+        eprintln!(
+            "{what}: outcome {:?}, at puncture {:?} mm, e_mean {:.3} e_max {:.3} e_final {:.3} mm",
+            s.outcome, s.e_puncture_mm, s.e_mean_mm, s.e_max_mm, s.e_final_mm
+        );
+    }
+    let at_puncture = |s: &RunSummary| s.e_puncture_mm.expect("punctured");
+    assert!(
+        at_puncture(&never) > 3.0,
+        "the tip slides with its heading kept"
+    );
+    assert!(
+        at_puncture(&auto) < 1.5,
+        "held within the cone, the tip stays near its target"
+    );
+    assert_eq!(auto.outcome, Outcome::Reached);
+    assert!(auto.e_final_mm <= 1.0 && auto.e_max_mm <= 3.0 && auto.e_mean_mm <= 1.0);
+}

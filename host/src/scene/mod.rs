@@ -24,6 +24,7 @@ pub use load::SceneError;
 pub use path::{MAX_FORMULA_CHARS, MAX_PATH_POINTS, PathError, SampledPath};
 pub use validate::{MAX_OBSTACLES, MAX_STEPS};
 
+pub use crate::step::EntryTilt;
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
 
@@ -470,6 +471,12 @@ pub struct InverseSpec {
     /// (0: off) [mm/rad].
     #[serde(default = "default_qp_spin_weight")]
     pub qp_spin_weight: f64,
+    /// Once the tip has slid on the gel's surface before puncture, the largest angle between
+    /// the target's heading shown to the controller and the surface's inward normal at the
+    /// entry point: an angle [rad] (π/2 or more: never turned) or `"auto"` (the default:
+    /// [`crate::step::ENTRY_TILT_FRACTION`] of the friction cone's half-angle `atan μ_s`).
+    #[serde(default)]
+    pub entry_tilt: EntryTilt,
 }
 
 /// How the inverse controller chooses the joint update.
@@ -520,6 +527,7 @@ impl Default for InverseSpec {
             limit_avoidance: default_limit_avoidance(),
             settling_margin: default_settling_margin(),
             qp_spin_weight: default_qp_spin_weight(),
+            entry_tilt: EntryTilt::Auto,
         }
     }
 }
@@ -856,6 +864,8 @@ pub enum StraightenSpec {
     /// This fraction [0, 1] whatever the needle, gel and path.
     Fraction(f64),
 }
+
+number_or_auto_spec!(EntryTilt, Angle, "expected an angle [rad] or \"auto\"");
 
 number_or_auto_spec!(
     StraightenSpec,

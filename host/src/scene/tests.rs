@@ -484,6 +484,24 @@ fn the_update_method_clearance_margin_and_qp_angle_weight_reach_the_core_and_are
     assert!(!s.inverse_params().second_opinion, "the default");
     assert_eq!(s.inverse_params().qp_angle_damping_max, 5.0, "the default");
     assert_eq!(s.inverse_params().qp_spin_weight, 0.0, "the default");
+    assert_eq!(
+        s.inverse.entry_tilt,
+        crate::step::EntryTilt::Auto,
+        "the default"
+    );
+    let mu = s.interaction.surface_friction;
+    let auto = crate::setup::step_params(&s).entry_tilt;
+    assert!((auto - crate::step::ENTRY_TILT_FRACTION * mu.atan()).abs() < 1e-15);
+    let tilt = s
+        .with_overrides(&[("inverse.entry_tilt".into(), "0.25".into())])
+        .expect("an angle");
+    assert_eq!(crate::setup::step_params(&tilt).entry_tilt, 0.25);
+    for bad in ["-0.1", "nan", "\"steep\""] {
+        let e = s
+            .with_overrides(&[("inverse.entry_tilt".into(), bad.into())])
+            .unwrap_err();
+        assert!(e.to_string().contains("inverse.entry_tilt"), "{bad}: {e}");
+    }
     let o = s
         .with_overrides(&[
             ("inverse.replan_rejected".into(), "true".into()),

@@ -4,7 +4,7 @@
 //! it can only be a typo or an attack (a needle of 10³⁰⁰ MPa, a time step of 10⁻³⁰⁰ s).
 
 use super::{
-    FAR_RESIDUAL_MAX, HorizonSpec, NearRadiusSpec, PoseSpec, SampledPath, Scene,
+    EntryTilt, FAR_RESIDUAL_MAX, HorizonSpec, NearRadiusSpec, PoseSpec, SampledPath, Scene,
     StraightenFromSpec, StraightenSpec,
 };
 use crate::free_motion::LAG_ROTATION_LIMIT;
@@ -436,6 +436,9 @@ impl Scene {
         }
         if let StraightenSpec::Fraction(b) = v.straighten {
             within("inverse.straighten", b, 0.0, 1.0, "[-]")?;
+        }
+        if let EntryTilt::Angle(a) = v.entry_tilt {
+            non_negative("inverse.entry_tilt", a, "[rad]")?;
         }
         if let StraightenFromSpec::Mm(d) = v.straighten_from {
             non_negative("inverse.straighten_from", d, "[mm]")?;

@@ -21,12 +21,15 @@ pub struct Forces {
     pub norms: [f64; 3],
     /// Normal force of the tip contact [N] (0 without contact).
     pub contact: f64,
+    /// Magnitude of the tip contact's friction force [N] (0 without contact or friction).
+    pub contact_tangential: f64,
 }
 
 /// The norms of `λ` per role and the tip's normal contact force.
 pub fn forces(set: &ConstraintSet, lambda: &[f64]) -> Forces {
     let mut norms = [0.0f64; 3];
     let mut contact = 0.0;
+    let mut contact_tangential = 0.0;
     for (g, s) in set.groups.iter().zip(set.starts()) {
         let l = &lambda[s..s + g.rows];
         let n2: f64 = l.iter().map(|v| v * v).sum();
@@ -35,6 +38,7 @@ pub fn forces(set: &ConstraintSet, lambda: &[f64]) -> Forces {
             GroupRole::Contact => {
                 norms[1] += n2;
                 contact = l[0];
+                contact_tangential = l[1..].iter().map(|v| v * v).sum::<f64>().sqrt();
             }
             GroupRole::Sliding(_) => norms[2] += n2,
         }
@@ -42,6 +46,7 @@ pub fn forces(set: &ConstraintSet, lambda: &[f64]) -> Forces {
     Forces {
         norms: norms.map(f64::sqrt),
         contact,
+        contact_tangential,
     }
 }
 
@@ -58,17 +63,53 @@ pub fn keep_columns(set: &mut ConstraintSet, columns: &mut Vec<(usize, PointColu
     }
 }
 
-/// Puncture and sliding points after a step whose tip contact force was `contact_force` [N].
-/// Returns whether the tip punctured the surface in this step.
+/// How close to the Coulomb cone's boundary `|λ_t| = μ λ_n` the tip's friction force counts as
+/// sliding (the constraint solve's tolerance leaves a sliding contact's force a little inside).
+const SLIDING_FRACTION: f64 = 0.999;
+
+/// How far the tip may lie from its target along the surface, sliding, before its heading is
+/// held within the friction cone [mm]: a tilted tip arriving on its path slides along it at
+/// touch-down and may go on sliding with its target; only a slide that leaves the target counts.
+const SLIP_OFF_TARGET: f64 = 0.2;
+
+/// The tip's distance from its target along the surface at the entry point (the component
+/// across the surface's normal taken out) [mm].
+fn slip_off_target<const N: usize>(world: &World<N>) -> f64 {
+    let e = world.target(world.c) - world.tip();
+    let n = world.entry_normal;
+    (e - n * n.dot(&e)).norm()
+}
+
+/// Whether the tip contact's forces `forces` lie on the boundary of its friction cone `mu`: the
+/// tip slides on the surface.
+pub fn tip_slides(forces: &Forces, mu: f64) -> bool {
+    forces.contact > 0.0 && forces.contact_tangential >= SLIDING_FRACTION * mu * forces.contact
+}
+
+/// Puncture and sliding points after a step with the constraint forces `forces` (the tip's
+/// contact, before puncture). Returns whether the tip punctured the surface in this step.
 ///
 /// # Errors
 /// [`SimError::PunctureOffGel`] when the tip punctures at a point that is not on the gel.
 pub fn update<const N: usize>(
     world: &mut World<N>,
-    contact_force: f64,
+    forces: &Forces,
     inter: &Interaction,
 ) -> Result<bool, SimError> {
+    let contact_force = forces.contact;
     world.in_contact = contact_force > 0.0;
+    if !world.punctured
+        && !world.tip_slid
+        && tip_slides(forces, inter.surface_friction)
+        && slip_off_target(world) > SLIP_OFF_TARGET
+    {
+        world.tip_slid = true;
+        tracing::debug!(
+            step = world.steps,
+            "the tip slides on the gel's surface before puncture: its heading is held within \
+             the friction cone until it punctures"
+        );
+    }
     let mut punctured_now = false;
     if !world.punctured && contact_force >= inter.puncture_force {
         puncture(world)?;
@@ -110,6 +151,7 @@ fn puncture<const N: usize>(world: &mut World<N>) -> Result<(), SimError> {
         None
     };
     world.punctured = true;
+    world.tip_slid = false;
     world.entry = entry.unwrap_or(at);
     add_sliding(world, at);
     world.last_sliding_depth = 0.0;
@@ -268,5 +310,22 @@ mod tests {
         // Away from any fold one element holds a point, and nothing changes there.
         let inside = Vector3::new(7.3, 8.1, 6.2);
         assert_eq!(locator.holding(&nodes, &mesh.tets, &inside).len(), 1);
+    }
+
+    /// A contact's friction force on its cone's boundary slides; inside it, or without a
+    /// normal force, it does not.
+    #[test]
+    fn a_friction_force_on_the_cone_boundary_slides() {
+        let at = |contact: f64, contact_tangential: f64| Forces {
+            norms: [0.0; 3],
+            contact,
+            contact_tangential,
+        };
+        assert!(tip_slides(&at(0.1, 0.03), 0.3));
+        assert!(tip_slides(&at(0.1, 0.03 * SLIDING_FRACTION), 0.3));
+        assert!(!tip_slides(&at(0.1, 0.02), 0.3));
+        assert!(!tip_slides(&at(0.0, 0.0), 0.3));
+        // Frictionless: any contact slides.
+        assert!(tip_slides(&at(0.1, 0.0), 0.0));
     }
 }

@@ -33,7 +33,9 @@ mod params;
 pub mod rows;
 
 pub use correct::ConstraintForce;
-pub use params::{Insertion, Interaction, StepParams, TargetMotion};
+pub use params::{
+    ENTRY_TILT_FRACTION, EntryTilt, Insertion, Interaction, StepParams, TargetMotion,
+};
 
 use crate::compliance::{NodeColumns, PointColumns, PointMap};
 use crate::constraints::{ClearanceObservation, ConstraintSet, GroupRole, Model, Observation};
@@ -365,7 +367,7 @@ impl<const N: usize> Pipeline<N> {
         // 6. Interaction bookkeeping.
         let forces = interact::forces(&self.set, lambda);
         interact::keep_columns(&mut self.set, &mut self.columns);
-        let punctured_now = interact::update(world, forces.contact, &params.interaction)?;
+        let punctured_now = interact::update(world, &forces, &params.interaction)?;
         times.interact = lap(&mut t);
 
         self.times = times;
@@ -404,7 +406,7 @@ impl<const N: usize> Pipeline<N> {
                 .iter()
                 .all(|&(b, _)| (b..b + 3).all(|d| gel.is_deferral_exact(d)))
         };
-        let observed = observe::observations(world, &self.free, c);
+        let observed = observe::observations(world, &self.free, c, params.entry_tilt);
         let clearances = observe::clearance_observations(world, &self.free, params);
         let is_near = self.set.gel.points.iter().all(|p| near(&p.map))
             && (observed.iter())
@@ -478,7 +480,7 @@ impl<const N: usize> Pipeline<N> {
         let (observations, clearances) = match self.observed.take() {
             Some(made) => made,
             None => (
-                observe::observations(world, &self.free, c),
+                observe::observations(world, &self.free, c, params.entry_tilt),
                 observe::clearance_observations(world, &self.free, params),
             ),
         };

@@ -16,11 +16,14 @@ use needle_core::payload::{ComplianceFrame, NCLEAR, ValidationError};
 const TANGENT_STEP: f64 = 1.0;
 
 /// The five observations of the frame (tip, tip direction, target, target tangent, entry) for
-/// the target at arc length `c`.
+/// the target at arc length `c`. Once the tip has slid on the surface before puncture
+/// ([`World::tip_slid`]), the target's tangent is turned towards the gel's inward normal at the
+/// entry point until at most `entry_tilt` [rad] from it ([`within_cone`]).
 pub fn observations<const N: usize>(
     world: &World<N>,
     free: &FreePositions,
     c: f64,
+    entry_tilt: f64,
 ) -> [Observation; 5] {
     let nodes = world.needle.positions();
     let n_last = nodes.len() - 1;
@@ -44,8 +47,31 @@ pub fn observations<const N: usize>(
         a: eye,
         free: (free.needle[n_last] - free.needle[n_last - 1]) / len,
     };
-    let (target, tangent) = target_observations(world, free, c);
+    let (target, mut tangent) = target_observations(world, free, c);
+    if world.tip_slid
+        && !world.punctured
+        && let Some(r) = within_cone(&tangent.free, &-world.entry_normal, entry_tilt)
+    {
+        tangent.a = r * tangent.a;
+        tangent.free = r * tangent.free;
+    }
     [tip, dir, target, tangent, entry_observation(world, free)]
+}
+
+/// The rotation that turns the heading `t` towards the unit axis `n` (the surface's inward
+/// normal) until it is `max_tilt` [rad] from it, in the plane of the two; none when `t` is
+/// within `max_tilt` of `n` already (or zero, or along `−n`). A needle pushed at more than the
+/// friction cone's half-angle from the normal slides on the surface instead of indenting it.
+pub fn within_cone(t: &Vector3<f64>, n: &Vector3<f64>, max_tilt: f64) -> Option<Matrix3<f64>> {
+    let u = t.try_normalize(f64::MIN_POSITIVE)?;
+    let tilt = u.dot(n).clamp(-1.0, 1.0).acos();
+    if tilt <= max_tilt {
+        return None;
+    }
+    let side = (u - n * u.dot(n)).try_normalize(1e-12)?;
+    let max = max_tilt.max(0.0);
+    let to = n * max.cos() + side * max.sin();
+    Rotation3::rotation_between(&u, &to).map(Rotation3::into_inner)
 }
 
 /// The entry point, observed after the free motion.
@@ -388,4 +414,36 @@ pub fn fill_header<const N: usize>(
     f.sequence = world.steps as u64;
     f.version = needle_core::payload::VERSION;
     f.validate()
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod tests {
+    use super::*;
+
+    /// A heading tilted past the bound is turned in the plane of the heading and the normal to
+    /// exactly the bound, its length kept; one within the bound, or along the normal, is left.
+    #[test]
+    fn a_heading_outside_the_cone_is_turned_onto_its_boundary() {
+        let n = Vector3::new(0.0, 0.0, -1.0);
+        let max = 0.9 * 0.3_f64.atan();
+        let tilt = 18.5_f64.to_radians();
+        let t = Vector3::new(0.0, tilt.sin(), -tilt.cos()) * 2.0;
+        let r = within_cone(&t, &n, max).unwrap();
+        assert!((r * r.transpose() - Matrix3::identity()).norm() < 1e-12);
+        let u = r * t;
+        assert!((u.norm() - 2.0).abs() < 1e-12);
+        assert!((u.normalize().dot(&n).acos() - max).abs() < 1e-12);
+        assert!(
+            u.x.abs() < 1e-12 && u.y > 0.0,
+            "in the plane, on the same side: {u:?}"
+        );
+        // Within the bound, along the normal, zero: no turn.
+        let inside = Vector3::new(0.0, (0.5 * max).sin(), -(0.5 * max).cos());
+        assert!(within_cone(&inside, &n, max).is_none());
+        assert!(within_cone(&n, &n, max).is_none());
+        assert!(within_cone(&Vector3::zeros(), &n, max).is_none());
+        // A bound of π/2 or more never turns a heading into the gel.
+        assert!(within_cone(&t, &n, std::f64::consts::FRAC_PI_2).is_none());
+    }
 }

@@ -175,6 +175,12 @@ pub struct StepParams {
     /// (`inverse.max_entry_shift`; `+∞`: none) [mm]: a clearance row of the frame
     /// ([`super::observe::clearance_observations`]).
     pub max_entry_shift: f64,
+    /// The largest angle [rad] between the target's heading shown to the controller and the
+    /// gel's inward normal at the entry point once the tip has slid on the surface before
+    /// puncture ([`crate::world::World::tip_slid`]; `inverse.entry_tilt`, by default 0.9 of
+    /// the friction cone's half-angle `atan μ_s`; π/2 or more: never turned). A needle pushed
+    /// at more than `atan μ_s` from the normal slides on the surface instead of indenting it.
+    pub entry_tilt: f64,
 }
 
 impl Default for StepParams {
@@ -185,6 +191,32 @@ impl Default for StepParams {
             dt: 0.04,
             max_base_step: 5.0,
             max_entry_shift: f64::INFINITY,
+            entry_tilt: EntryTilt::default().angle(Interaction::default().surface_friction),
+        }
+    }
+}
+
+/// The largest tilt of the heading shown to the controller from the entry's normal, once the
+/// tip has slid on the surface before puncture (`inverse.entry_tilt`).
+#[derive(Clone, Copy, Debug, PartialEq, Default)]
+pub enum EntryTilt {
+    /// [`ENTRY_TILT_FRACTION`] of the friction cone's half-angle `atan μ_s`.
+    #[default]
+    Auto,
+    /// This angle [rad] (π/2 or more: the heading is never turned).
+    Angle(f64),
+}
+
+/// The fraction of the friction cone's half-angle that [`EntryTilt::Auto`] allows: a margin
+/// for the needle's bending, which tilts the tip's force from its heading.
+pub const ENTRY_TILT_FRACTION: f64 = 0.9;
+
+impl EntryTilt {
+    /// The angle [rad] on a surface of friction coefficient `mu`.
+    pub fn angle(self, mu: f64) -> f64 {
+        match self {
+            Self::Auto => ENTRY_TILT_FRACTION * mu.max(0.0).atan(),
+            Self::Angle(a) => a,
         }
     }
 }
