@@ -161,6 +161,10 @@ fn tilt_large_seed808_sliding_before_puncture_is_held_within_the_friction_cone()
             s.outcome, s.e_puncture_mm, s.e_mean_mm, s.e_max_mm, s.e_final_mm
         );
     }
+    for s in [&auto, &never] {
+        let slid = s.tip_slid_step.expect("the slide is reported");
+        assert!(slid < s.puncture_step.expect("punctured"));
+    }
     let at_puncture = |s: &RunSummary| s.e_puncture_mm.expect("punctured");
     assert!(
         at_puncture(&never) > 3.0,

@@ -422,6 +422,11 @@ fn print_text(s: &RunSummary) {
         mm3(s.path_deviation_mean_mm),
         mm3(s.path_deviation_max_mm),
     );
+    if let Some(k) = s.tip_slid_step {
+        println!(
+            "before puncture the tip slid off its target on the surface at step {k}: from then until it punctured, the heading shown to the controller was held within inverse.entry_tilt of the surface's normal"
+        );
+    }
     if s.puncture_step.is_some() {
         println!(
             "tissue moved by the insertion (largest, the support's motion taken out): the target {:.3} mm, the entry point {:.3} mm",

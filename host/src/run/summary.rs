@@ -120,6 +120,9 @@ pub struct RunSummary {
     pub stop_reason: Option<StopReason>,
     /// Step at which the tip punctured the surface.
     pub puncture_step: Option<usize>,
+    /// Step after which the tip, sliding off its target on the surface before puncture, had
+    /// its heading held within the friction cone (`inverse.entry_tilt`; none: it never slid off).
+    pub tip_slid_step: Option<usize>,
     /// Mean tracking error over the steps with the tip inside the gel
     /// ([`StepReport::tip_inside`]) [mm].
     pub e_mean_mm: f64,
@@ -420,6 +423,7 @@ impl Statistics {
                 .map(|(k, why)| format!("step {k}: {why}")),
             stop_reason: end.stopped.map(|(_, why)| why),
             puncture_step: reports.iter().find(|r| r.punctured_now).map(|r| r.step),
+            tip_slid_step: reports.iter().find(|r| r.tip_slid_now).map(|r| r.step),
             e_mean_mm: e_mean,
             e_max_mm: inside.iter().map(|r| r.error).fold(f64::NAN, f64::max),
             e_puncture_mm: reports

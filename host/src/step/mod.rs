@@ -105,6 +105,10 @@ pub struct StepReport {
     pub sliding_points: usize,
     /// The puncture happened during this step.
     pub punctured_now: bool,
+    /// The tip slid off its target on the surface during this step, before puncture: from the
+    /// next step until it punctures, the heading shown to the controller is held within the
+    /// friction cone ([`World::tip_slid`]).
+    pub tip_slid_now: bool,
     /// Normal force of the tip contact [N] (0 without contact).
     pub contact_force: f64,
     /// Norms of λ per role: base, contact, sliding [N or N·mm].
@@ -367,11 +371,13 @@ impl<const N: usize> Pipeline<N> {
         // 6. Interaction bookkeeping.
         let forces = interact::forces(&self.set, lambda);
         interact::keep_columns(&mut self.set, &mut self.columns);
+        let slid_before = world.tip_slid;
         let punctured_now = interact::update(world, &forces, &params.interaction)?;
         times.interact = lap(&mut t);
 
         self.times = times;
-        let report = self.report(world, c, forces, punctured_now);
+        let mut report = self.report(world, c, forces, punctured_now);
+        report.tip_slid_now = world.tip_slid && !slid_before;
         world.steps += 1;
         Ok(report)
     }
@@ -523,6 +529,7 @@ impl<const N: usize> Pipeline<N> {
             rows: self.set.rows(),
             sliding_points: world.sliding.len(),
             punctured_now,
+            tip_slid_now: false,
             contact_force: forces.contact,
             lambda_norms: forces.norms,
             solver: widen_report(&self.command.report),
