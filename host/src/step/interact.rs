@@ -25,7 +25,7 @@ pub struct Forces {
     pub contact_tangential: f64,
 }
 
-/// The norms of `λ` per role and the tip's normal contact force.
+/// The norms of `λ` per role and the tip contact's normal and friction forces.
 pub fn forces(set: &ConstraintSet, lambda: &[f64]) -> Forces {
     let mut norms = [0.0f64; 3];
     let mut contact = 0.0;

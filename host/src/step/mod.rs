@@ -376,8 +376,8 @@ impl<const N: usize> Pipeline<N> {
         times.interact = lap(&mut t);
 
         self.times = times;
-        let mut report = self.report(world, c, forces, punctured_now);
-        report.tip_slid_now = world.tip_slid && !slid_before;
+        let slid_now = world.tip_slid && !slid_before;
+        let report = self.report(world, c, forces, (punctured_now, slid_now));
         world.steps += 1;
         Ok(report)
     }
@@ -508,7 +508,7 @@ impl<const N: usize> Pipeline<N> {
         world: &World<N>,
         c: f64,
         forces: interact::Forces,
-        punctured_now: bool,
+        (punctured_now, tip_slid_now): (bool, bool),
     ) -> StepReport {
         let tip = world.tip();
         let target = world.target(c);
@@ -529,7 +529,7 @@ impl<const N: usize> Pipeline<N> {
             rows: self.set.rows(),
             sliding_points: world.sliding.len(),
             punctured_now,
-            tip_slid_now: false,
+            tip_slid_now,
             contact_force: forces.contact,
             lambda_norms: forces.norms,
             solver: widen_report(&self.command.report),
