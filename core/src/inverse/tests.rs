@@ -833,3 +833,47 @@ fn spin_weight_holds_the_needle_from_turning_about_its_axis() {
         "the spin term moved the tip"
     );
 }
+
+/// Regression (public `tilt_large`, step 105): before the puncture the tip is held only by a
+/// one-sided contact with the surface, and a step that turned the needle about its base swung
+/// the tip 17.8 mm off its target in one step while the base stayed within its trust region.
+/// The needle in the air (a rigid 120 mm needle, not inserted) asked to tilt its wrist by
+/// 0.15 rad: the tip's rigid motion `(J_v − [r]× J_ω) Δq` keeps within `max_base_step` on
+/// every axis (the base's bound alone let it move 27.5 mm on one axis, the base 2 mm).
+#[test]
+fn tip_swung_about_the_needle_base_is_bounded_by_the_trust_region() {
+    use crate::kinematics::Kinematics;
+    use crate::payload::StatusFlags;
+    let chain = DhChain::rv1a();
+    let mut q_target = Q_FREE;
+    q_target[4] += 0.15;
+    let mut frame = ComplianceFrame::<12>::new_boxed();
+    let mut cmd = Command::<12>::new_boxed();
+    rigid_needle_frame(&mut frame, &chain, &Q_FREE, &q_target, 120.0);
+    assert_eq!(frame.inserted, 0, "in the air");
+    let bound = 2.0;
+    let params = InverseParams {
+        max_base_step: bound,
+        ..InverseParams::default()
+    };
+    let rep = Controller::<12>::new_boxed(chain, params)
+        .step(&frame, &mut cmd)
+        .expect("valid");
+    let (jt, tool) = chain.jacobian_tool(&Q_FREE);
+    let dq = nalgebra::SVector::<f64, 6>::from(rep.delta_q);
+    let base = jt.fixed_rows::<3>(0) * dq;
+    let r = nalgebra::Vector3::from_fn(|i, _| frame.o_free[i]) - tool.translation;
+    let tip = base - r.cross(&(jt.fixed_rows::<3>(3) * dq));
+    let amax = |v: &nalgebra::Vector3<f64>| v.iter().fold(0.0f64, |m, x| m.max(x.abs()));
+    std::println!(
+        "largest axis of the step's motion: base {:.4} mm, tip (rigid) {:.4} mm; predicted \
+         tip travel {:.4} mm; flags {:#x}",
+        amax(&base),
+        amax(&tip),
+        tip_motion(&rep).norm(),
+        rep.flags
+    );
+    assert!(amax(&tip) <= bound * (1.0 + 1e-6), "{tip:?}");
+    assert!(amax(&tip) > 0.99 * bound, "the tip's bound holds the step");
+    assert_ne!(rep.flags & StatusFlags::STEP_LIMITED, 0);
+}
