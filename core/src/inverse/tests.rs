@@ -667,7 +667,7 @@ fn held_step_is_not_repeated_on_an_unchanged_frame() {
         resume_held: true,
         ..InverseParams::default()
     };
-    assert!(!InverseParams::default().resume_held, "off by default");
+    assert!(InverseParams::default().resume_held, "on by default");
     let off = InverseParams {
         resume_held: false,
         ..on

@@ -479,7 +479,7 @@ fn the_update_method_clearance_margin_and_qp_angle_weight_reach_the_core_and_are
     assert_eq!(s.inverse_params().qp_angle_weight, 10.0);
     assert!(s.inverse_params().qp_heading, "the default");
     assert!(!s.inverse_params().replan_rejected, "the default");
-    assert!(!s.inverse_params().resume_held, "the default");
+    assert!(s.inverse_params().resume_held, "the default");
     assert!(s.inverse_params().settling_margin, "the default");
     assert!(!s.inverse_params().second_opinion, "the default");
     assert_eq!(s.inverse_params().qp_angle_damping_max, 5.0, "the default");
@@ -507,7 +507,7 @@ fn the_update_method_clearance_margin_and_qp_angle_weight_reach_the_core_and_are
             ("inverse.replan_rejected".into(), "true".into()),
             ("inverse.second_opinion".into(), "true".into()),
             ("inverse.qp_angle_damping_max".into(), "21".into()),
-            ("inverse.resume_held".into(), "true".into()),
+            ("inverse.resume_held".into(), "false".into()),
             ("inverse.settling_margin".into(), "false".into()),
             ("inverse.method".into(), "\"paper\"".into()),
             ("inverse.clearance_margin".into(), "0.5".into()),
@@ -521,7 +521,7 @@ fn the_update_method_clearance_margin_and_qp_angle_weight_reach_the_core_and_are
     assert!(o.inverse_params().replan_rejected);
     assert!(o.inverse_params().second_opinion);
     assert_eq!(o.inverse_params().qp_angle_damping_max, 21.0);
-    assert!(o.inverse_params().resume_held);
+    assert!(!o.inverse_params().resume_held);
     assert!(!o.inverse_params().settling_margin);
     assert_eq!(o.inverse_params().method, StepMethod::Paper);
     assert_eq!(o.inverse_params().clearance_margin, 0.5);
