@@ -89,7 +89,7 @@ struct RowRanges {
 
 /// Rows from the tool's Jacobian, the same in every stage.
 #[derive(Default)]
-struct ToolRows<const N: usize> {
+pub(super) struct ToolRows<const N: usize> {
     /// The translational rows `J_tool,v` (the trust region), with a finite `max_base_step`.
     trust: Option<SMatrix<f64, 3, N>>,
     /// Before the puncture (the frame not inserted), the tip's motion were the needle a rigid
@@ -99,7 +99,7 @@ struct ToolRows<const N: usize> {
     /// `tilt_large`: 17.8 mm into the air in one step with the base's bound alone). Once
     /// inserted, the gel holds the shaft and the rigid motion is no bound of the real one (kept
     /// then, 5 targets fewer of 609 were reached: `docs/benchmark.md`).
-    tip: Option<SMatrix<f64, 3, N>>,
+    pub(super) tip: Option<SMatrix<f64, 3, N>>,
     /// `ẑᵀ J_ω`: the needle's spin about its axis per unit `Δq`, with a positive
     /// `qp_spin_weight`.
     spin: Option<[f64; N]>,
@@ -416,7 +416,7 @@ impl<const M: usize, const N: usize> Controller<M, N> {
     /// The rows of the tool's Jacobian the stages need: the trust region's (with a finite
     /// `max_base_step`: the base's, and before the puncture the tip's as part of a rigid needle)
     /// and the needle's spin about its axis (with a positive `qp_spin_weight`).
-    fn tool_rows(&self, frame: &ComplianceFrame<M, N>) -> ToolRows<N> {
+    pub(super) fn tool_rows(&self, frame: &ComplianceFrame<M, N>) -> ToolRows<N> {
         let p = &self.params;
         let spin_on = p.qp_spin_weight > 0.0;
         if !spin_on && !p.max_base_step.is_finite() {

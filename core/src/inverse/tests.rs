@@ -877,3 +877,62 @@ fn tip_swung_about_the_needle_base_is_bounded_by_the_trust_region() {
     assert!(amax(&tip) > 0.99 * bound, "the tip's bound holds the step");
     assert_ne!(rep.flags & StatusFlags::STEP_LIMITED, 0);
 }
+
+/// The tip's rows before the puncture (`ToolRows::tip`, `J_v − [r]× J_ω`) against central
+/// differences of the forward kinematics: the tip carried rigidly by the tool,
+/// `T(q) · (T(q₀)⁻¹ · tip₀)`, over 10⁻⁶ rad per joint, at two poses and needle lengths. Once
+/// inserted there are no such rows.
+#[test]
+fn tip_rows_before_puncture_match_finite_differences_of_the_forward_kinematics() {
+    use crate::kinematics::Kinematics;
+    use crate::payload::ObsIndex;
+    use nalgebra::Vector3;
+    let chain = DhChain::rv1a();
+    let mut frame = ComplianceFrame::<12>::new_boxed();
+    let h = 1e-6;
+    let poses = [
+        (Q_FREE, [0.2, 0.35, 2.0, 0.1, 0.6, -0.2], 120.0),
+        (
+            [-0.4, 0.1, 1.7, 0.6, -0.9, 1.2],
+            [-0.35, 0.15, 1.75, 0.5, -0.8, 1.1],
+            60.0,
+        ),
+    ];
+    for (q0, q_target, length) in poses {
+        rigid_needle_frame(&mut frame, &chain, &q0, &q_target, length);
+        let params = InverseParams {
+            max_base_step: 5.0,
+            ..InverseParams::default()
+        };
+        let ctrl = Controller::<12>::new_boxed(chain, params);
+        let rows = ctrl
+            .tool_rows(&frame)
+            .tip
+            .expect("rows before the puncture");
+        let pose0 = chain.tool_pose(&q0);
+        let tip0 = Vector3::from_column_slice(&frame.o_free[ObsIndex::TIP_POSITION..][..3]);
+        let local = pose0.rotation.transpose() * (tip0 - pose0.translation);
+        let mut largest = 0.0f64;
+        for i in 0..6 {
+            let (mut qp, mut qm) = (q0, q0);
+            qp[i] += h;
+            qm[i] -= h;
+            let fd = (chain.tool_pose(&qp).transform_point(&local)
+                - chain.tool_pose(&qm).transform_point(&local))
+                / (2.0 * h);
+            let col = rows.column(i);
+            let err = (col - fd).norm();
+            largest = largest.max(err / fd.norm().max(1.0));
+            assert!(
+                err <= 1e-5 * fd.norm().max(1.0),
+                "joint {i}: rows {col:?}, differences {fd:?}"
+            );
+        }
+        std::println!("length {length} mm: largest relative difference {largest:.2e}");
+        frame.inserted = 1;
+        assert!(
+            ctrl.tool_rows(&frame).tip.is_none(),
+            "inserted: no tip rows"
+        );
+    }
+}
