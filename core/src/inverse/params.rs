@@ -182,13 +182,6 @@ pub struct InverseParams {
     /// shaft sticks, the finite-difference slope over `joint_step` can promise a motion the
     /// step does not get; the frozen active set's slope is the one of a small step.
     pub second_opinion: bool,
-    /// When the confirming solve rejects a [`StepMethod::Qp`] step, plan once more with the
-    /// columns of the joints that the rejected step moved backwards differenced backwards
-    /// (`(f(q) − f(q − joint_step e_i)) / joint_step`, one more solve per such joint), and
-    /// confirm that candidate too, before the first stage's step and its halvings (default
-    /// false). Where the shaft sticks on one side of a joint and slips on the other, the
-    /// forward difference is the slope of the wrong side for a step that goes backwards.
-    pub sided_replan: bool,
     /// Largest damping `ε` of the second stage of the [`StepMethod::Qp`] update (the angles)
     /// [mm/rad] (default 5): that stage is damped by the step's `ε`, raised towards
     /// `damping_max` while `J` is near singular, but by at most this (and never less than
@@ -253,7 +246,6 @@ crate::zeroed::impl_zeroable!(InverseParams {
     replan_rejected,
     resume_held,
     second_opinion,
-    sided_replan,
     qp_angle_damping_max,
     settling_margin,
     qp_spin_weight,
@@ -293,7 +285,6 @@ impl Default for InverseParams {
             replan_rejected: false,
             resume_held: true,
             second_opinion: false,
-            sided_replan: false,
             qp_angle_damping_max: 5.0,
             settling_margin: true,
             qp_spin_weight: 0.0,

@@ -274,7 +274,7 @@ impl<const M: usize, const N: usize> Controller<M, N> {
                 count_solve(report, &r);
                 bi
             };
-            self.record_column(frame, obj0, (&bi, i, p.joint_step), (&mut jac, &mut clear));
+            self.record_column(frame, obj0, &bi, i, (&mut jac, &mut clear));
             let m = frame.rows();
             self.sens
                 .record(i, &self.lambda.work, &self.lambda.base, m, p.joint_step);
@@ -301,55 +301,29 @@ impl<const M: usize, const N: usize> Controller<M, N> {
     }
 
     /// Column `i` of `J` and of the clearances' and angles' derivatives, from the solution at
-    /// `q + h e_i` in `lambda.work` with the needle base at `bi` (`h` = `joint_step`, or its
-    /// negative for a backward difference).
+    /// `q + δq e_i` in `lambda.work` with the needle base at `bi`.
     fn record_column(
         &self,
         frame: &ComplianceFrame<M, N>,
         obj0: &Objective,
-        (bi, i, h): (&crate::kinematics::Pose, usize, f64),
+        bi: &crate::kinematics::Pose,
+        i: usize,
         (jac, clear): (&mut Jacobian<N>, &mut Clearances<N>),
     ) {
         let p = &self.params;
         let ti = evaluate_objective(frame, &self.lambda.work, bi, p);
         for r in 0..3 {
-            jac[(r, i)] = (ti.t[r] - obj0.t[r]) / h;
+            jac[(r, i)] = (ti.t[r] - obj0.t[r]) / p.joint_step;
         }
-        jac[(3, i)] = obj0.angle_derivative(&ti, h, p.angle_weight);
+        jac[(3, i)] = obj0.angle_derivative(&ti, p.joint_step, p.angle_weight);
         for r in 0..3 {
-            clear.phi1[(r, i)] = (ti.phi1[r] - obj0.phi1[r]) / h;
-            clear.phi2[(r, i)] = (ti.phi2[r] - obj0.phi2[r]) / h;
+            clear.phi1[(r, i)] = (ti.phi1[r] - obj0.phi1[r]) / p.joint_step;
+            clear.phi2[(r, i)] = (ti.phi2[r] - obj0.phi2[r]) / p.joint_step;
         }
         for k in 0..clear.count {
-            clear.gradient[k][i] = (frame.clearance(k, &self.lambda.work) - clear.value[k]) / h;
+            clear.gradient[k][i] =
+                (frame.clearance(k, &self.lambda.work) - clear.value[k]) / p.joint_step;
         }
-    }
-
-    /// The model of [`super::InverseParams::sided_replan`]: `jac` and `clear` with the column
-    /// of every joint that `dq` moves backwards differenced backwards, one solve at
-    /// `q − joint_step e_i` each; `None` when `dq` moves no joint backwards.
-    fn sided_model(
-        &mut self,
-        frame: &ComplianceFrame<M, N>,
-        obj0: &Objective,
-        (jac, clear): (&Jacobian<N>, &Clearances<N>),
-        dq: &SVector<f64, N>,
-        report: &mut SolverReport<N>,
-    ) -> Option<(Jacobian<N>, Clearances<N>)> {
-        if dq.iter().all(|d| *d >= 0.0) {
-            return None;
-        }
-        let (mut jac, mut clear) = (*jac, *clear);
-        let h = self.params.joint_step;
-        let tolerance = self.params.jacobian_tolerance.max(self.params.gs.tolerance);
-        for i in (0..N).filter(|&i| dq[i] < 0.0) {
-            let mut qi = frame.q;
-            qi[i] -= h;
-            let (bi, r) = self.solve(frame, &qi, Target::Work, Start::Predicted, tolerance);
-            count_solve(report, &r);
-            self.record_column(frame, obj0, (&bi, i, -h), (&mut jac, &mut clear));
-        }
-        Some((jac, clear))
     }
 
     /// The linearised model of [`super::InverseParams::second_opinion`]: `J` and the
@@ -370,8 +344,7 @@ impl<const M: usize, const N: usize> Controller<M, N> {
             let mut qi = frame.q;
             qi[i] += self.params.joint_step;
             let bi = self.predict_at(frame, &qi);
-            let h = self.params.joint_step;
-            self.record_column(frame, obj0, (&bi, i, h), (&mut jac, &mut clear));
+            self.record_column(frame, obj0, &bi, i, (&mut jac, &mut clear));
         }
         Some((jac, clear))
     }
@@ -574,7 +547,6 @@ impl<const M: usize, const N: usize> Controller<M, N> {
         };
         let mut second =
             self.params.second_opinion && self.params.jacobian != super::JacobianMode::Linearized;
-        let mut sided = self.params.sided_replan;
         let mut fallback = 0;
         while fallback <= MAX_BACKTRACKS + 1 {
             if let Some(kept) = self.confirm(frame, (&jac, &clear, obj0), &dq, report) {
@@ -594,24 +566,6 @@ impl<const M: usize, const N: usize> Controller<M, N> {
                             d2[i] = q2[i] - frame.q[i];
                         }
                         if let Some(kept) = self.confirm(frame, (&jl, &cl, obj0), &d2, report) {
-                            return kept;
-                        }
-                    }
-                }
-            }
-            if sided {
-                // Once, after the first plan: the joints it moved backwards differenced
-                // backwards, the program solved again on that model and its candidate confirmed.
-                sided = false;
-                if let Some((js, cs)) = self.sided_model(frame, obj0, (&jac, &clear), &dq, report) {
-                    let mut scratch = SolverReport::default();
-                    let (q2, _) = self.qp_step(frame, &js, &cs, obj0, &mut scratch);
-                    if scratch.flags & StatusFlags::QP_FAILED == 0 {
-                        let mut d2 = SVector::<f64, N>::zeros();
-                        for i in 0..N {
-                            d2[i] = q2[i] - frame.q[i];
-                        }
-                        if let Some(kept) = self.confirm(frame, (&js, &cs, obj0), &d2, report) {
                             return kept;
                         }
                     }

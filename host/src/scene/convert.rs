@@ -225,7 +225,6 @@ impl Scene {
             qp_horizon: v.qp_horizon.horizon(self.steering_length()),
             replan_rejected: v.replan_rejected,
             second_opinion: v.second_opinion,
-            sided_replan: v.sided_replan,
             qp_angle_damping_max: v.qp_angle_damping_max,
             resume_held: v.resume_held,
             limit_avoidance: v.limit_avoidance,

@@ -106,10 +106,6 @@ pub(super) fn default_second_opinion() -> bool {
     InverseParams::default().second_opinion
 }
 
-pub(super) fn default_sided_replan() -> bool {
-    InverseParams::default().sided_replan
-}
-
 pub(super) fn default_qp_angle_damping_max() -> f64 {
     InverseParams::default().qp_angle_damping_max
 }

@@ -445,7 +445,7 @@ pub struct InverseSpec {
     #[serde(default = "default_replan_rejected")]
     pub replan_rejected: bool,
     /// A `"qp"` step at the joints the last step held goes on halving the first stage's step
-    /// from where that step stopped instead of repeating its candidates (default true).
+    /// from where that step stopped instead of repeating its candidates (default false).
     #[serde(default = "default_resume_held")]
     pub resume_held: bool,
     /// A `"qp"` step that its confirming solve rejected is planned once more with the
@@ -453,11 +453,6 @@ pub struct InverseSpec {
     /// confirmed too, before the first stage's step and its halvings.
     #[serde(default = "default_second_opinion")]
     pub second_opinion: bool,
-    /// A `"qp"` step that its confirming solve rejected is planned once more with the columns
-    /// of the joints it moved backwards differenced backwards, and that candidate confirmed
-    /// too (default false).
-    #[serde(default = "default_sided_replan")]
-    pub sided_replan: bool,
     /// Largest damping of the `"qp"` update's second stage (the angles), which is otherwise
     /// the first stage's, raised towards `damping_max` near a singularity of the Jacobian
     /// [mm/rad].
@@ -527,7 +522,6 @@ impl Default for InverseSpec {
             straighten_from: StraightenFromSpec::Auto,
             replan_rejected: default_replan_rejected(),
             second_opinion: default_second_opinion(),
-            sided_replan: default_sided_replan(),
             qp_angle_damping_max: default_qp_angle_damping_max(),
             resume_held: default_resume_held(),
             limit_avoidance: default_limit_avoidance(),
