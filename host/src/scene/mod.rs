@@ -445,7 +445,7 @@ pub struct InverseSpec {
     #[serde(default = "default_replan_rejected")]
     pub replan_rejected: bool,
     /// A `"qp"` step at the joints the last step held goes on halving the first stage's step
-    /// from where that step stopped instead of repeating its candidates (default false).
+    /// from where that step stopped instead of repeating its candidates (default true).
     #[serde(default = "default_resume_held")]
     pub resume_held: bool,
     /// A `"qp"` step that its confirming solve rejected is planned once more with the
