@@ -31,7 +31,7 @@ def cli_run(*args):
 
 FIGURES = ("e_mean_mm", "e_max_mm", "e_final_mm", "e_last_mm", "final_depth_mm",
            "path_deviation_mean_mm", "path_deviation_max_mm", "target_shift_max_mm",
-           "entry_shift_max_mm", "max_strain")
+           "entry_shift_max_mm", "max_strain", "needle_strain_max")
 COUNTS = ("outcome", "steps", "steps_planned", "steps_nominal", "steps_to_target",
           "puncture_step", "completed", "obstacle_hit", "gs_not_converged_steps")
 

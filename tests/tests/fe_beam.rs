@@ -131,7 +131,11 @@ fn rigid_motion_creates_no_beam_force() {
 }
 
 /// Static cantilever: load stepped in `steps` increments, Newton iterations to equilibrium.
-fn cantilever(elements: usize, tip_load: [f64; 6], steps: usize) -> (Vector3<f64>, f64, usize) {
+fn cantilever(
+    elements: usize,
+    tip_load: [f64; 6],
+    steps: usize,
+) -> (Vector3<f64>, f64, usize, f64) {
     let r = load_ref("cantilever.json");
     let l = r["geometry"]["L_m"].as_f64().unwrap() * 1000.0;
     let d = r["geometry"]["outer_diameter_m"].as_f64().unwrap() * 1000.0;
@@ -165,7 +169,8 @@ fn cantilever(elements: usize, tip_load: [f64; 6], steps: usize) -> (Vector3<f64
     let (axis, angle) = needle.orientations()[n - 1]
         .axis_angle()
         .map_or((Vector3::z_axis(), 0.0), |(a, t)| (a, t));
-    (tip, angle * axis.z.signum(), iterations)
+    let (strain, _) = needle.max_bending_strain();
+    (tip, angle * axis.z.signum(), iterations, strain)
 }
 
 #[test]
@@ -186,7 +191,7 @@ fn cantilever_matches_the_elastica_within_0_1_percent() {
             ],
             _ => [0.0, case["force_N"].as_f64().unwrap(), 0.0, 0.0, 0.0, 0.0],
         };
-        let (tip, rot, its) = cantilever(40, load, 6);
+        let (tip, rot, its, _) = cantilever(40, load, 6);
         let ex = Vector3::new(
             case["exact"]["tip_x_m"].as_f64().unwrap() * 1000.0,
             case["exact"]["tip_y_m"].as_f64().unwrap() * 1000.0,
@@ -203,6 +208,41 @@ fn cantilever_matches_the_elastica_within_0_1_percent() {
             (rot - rot_ex).abs() < 1e-3 * rot_ex.max(0.1),
             "{kind} {deg}°: tip rotation {rot} vs {rot_ex}"
         );
+    }
+}
+
+/// The needle's largest bending strain (`NeedleModel::max_bending_strain`, the summary's
+/// `needle_strain_max`) against the elastica of `cantilever.json`: a tip moment `M` bends the
+/// cantilever into a circular arc of curvature `M / EI`; a tip force normal to the rest axis
+/// puts the largest moment at the root (the reference's `root_moment_Nm`). The strain at the
+/// surface is `r_o M / EI`.
+#[test]
+fn needle_bending_strain_matches_the_elastica_moment() {
+    let r = load_ref("cantilever.json");
+    let d = r["geometry"]["outer_diameter_m"].as_f64().unwrap() * 1000.0;
+    let ei = r["material"]["EI_Nm2"].as_f64().unwrap() * 1e6; // N·mm²
+    for case in r["cases"].as_array().unwrap() {
+        let kind = case["load_kind"].as_str().unwrap();
+        let deg = case["target_tip_rotation_deg"].as_f64().unwrap();
+        let (load, moment) = match kind {
+            "tip_moment" => {
+                let m = case["moment_Nm"].as_f64().unwrap() * 1000.0;
+                ([0.0, 0.0, 0.0, 0.0, 0.0, m], m)
+            }
+            _ => (
+                [0.0, case["force_N"].as_f64().unwrap(), 0.0, 0.0, 0.0, 0.0],
+                case["exact"]["root_moment_Nm"].as_f64().unwrap() * 1000.0,
+            ),
+        };
+        let (_, _, _, strain) = cantilever(40, load, 6);
+        let exact = 0.5 * d * moment / ei;
+        let err = (strain - exact).abs() / exact;
+        println!(
+            "{kind} {deg}°: largest bending strain {:.5} % vs {:.5} % (relative error {err:.1e})",
+            100.0 * strain,
+            100.0 * exact
+        );
+        assert!(err < 1e-4, "{kind} {deg}°: strain {strain} vs {exact}");
     }
 }
 

@@ -114,6 +114,7 @@ fn quick_report_writes_every_promised_file() {
             ("qp_horizon_mm", s.qp_horizon_mm),
             ("straighten", s.straighten),
             ("max_strain", s.max_strain),
+            ("needle_strain_max", s.needle_strain_max),
         ] {
             let got: f64 = row[col(name)]
                 .parse()

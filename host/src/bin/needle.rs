@@ -465,6 +465,11 @@ fn print_text(s: &RunSummary) {
         100.0 * s.max_strain,
         s.max_inverted_elements
     );
+    println!(
+        "needle: largest bending strain {:.2} % at its surface (its model is linear elastic: \
+         compare with its material's yield strain, σ_y / E)",
+        100.0 * s.needle_strain_max
+    );
     if s.background_factorizations + s.immediate_factorizations > 0 {
         let near = if s.near_factorizations > 0 {
             format!(

@@ -404,6 +404,36 @@ impl CorotationalBeams {
         }
     }
 
+    /// The largest bending strain at the needle's outer surface, `r_o |κ|`, over the elements'
+    /// ends at positions `x` and orientations `q`, and the element where it is [-]. Within an
+    /// element the linear local beam's curvature varies linearly, from `(4θ̄₁ + 2θ̄₂)/ℓ₀` at its
+    /// first end to `(2θ̄₁ + 4θ̄₂)/ℓ₀` at its second in each bending plane (`θ̄ᵢ` the local end
+    /// rotations of the corotated frame; a circular arc has `θ̄₁ = −θ̄₂` and both ends the same
+    /// curvature), so its ends hold its largest. Axial and torsional strain are left out: a
+    /// needle steered through gel is strained by bending.
+    pub fn max_bending_strain(
+        &self,
+        x: &[Vector3<f64>],
+        q: &[UnitQuaternion<f64>],
+    ) -> (f64, usize) {
+        let r_o = 0.5 * self.section.outer_diameter;
+        let mut largest = (0.0, 0);
+        for e in 0..self.elements.len() {
+            let (_, theta) = self.local_kinematics::<D1>(e, x, q);
+            let l0 = self.rest_length[e];
+            let end = |a: usize, b: usize| {
+                let ky = (4.0 * theta[a][1].v + 2.0 * theta[b][1].v) / l0;
+                let kz = (4.0 * theta[a][2].v + 2.0 * theta[b][2].v) / l0;
+                r_o * ky.hypot(kz)
+            };
+            let strain = end(0, 1).max(end(1, 0));
+            if strain > largest.0 || strain.is_nan() {
+                largest = (strain, e);
+            }
+        }
+        largest
+    }
+
     /// Exact tangent of element `e`: the derivative of its internal force under the
     /// multiplicative rotation update, `H − ½[m_i]×` on the rotational diagonal blocks (not
     /// symmetric away from `m = 0`).

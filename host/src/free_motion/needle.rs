@@ -186,6 +186,13 @@ impl FeModel<Beams> {
         &self.elements.beams
     }
 
+    /// The largest bending strain at the needle's surface in its current pose, and the element
+    /// where it is ([`CorotationalBeams::max_bending_strain`]) [-].
+    pub fn max_bending_strain(&self) -> (f64, usize) {
+        self.beams()
+            .max_bending_strain(self.positions(), self.orientations())
+    }
+
     /// Includes (default) or drops the geometric stiffness of the beams in the factorised
     /// matrix (see [`CorotationalBeams::set_geometric_stiffness`]).
     pub fn set_geometric_stiffness(&mut self, on: bool) {

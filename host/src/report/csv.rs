@@ -6,7 +6,7 @@ use crate::run::RunSummary;
 use std::path::Path;
 
 /// The columns of `runs.csv`.
-const RUNS_HEADER: [&str; 56] = [
+const RUNS_HEADER: [&str; 57] = [
     "run",
     "scene",
     "controller",
@@ -43,6 +43,7 @@ const RUNS_HEADER: [&str; 56] = [
     "entry_shift_max_mm",
     "max_strain",
     "max_inverted_elements",
+    "needle_strain_max",
     "advisories",
     "step_median_ms",
     "step_p99_ms",
@@ -112,6 +113,7 @@ fn summary_fields(r: &ReportRun, s: &RunSummary) -> Vec<String> {
         n(s.entry_shift_max_mm),
         n(s.max_strain),
         s.max_inverted_elements.to_string(),
+        n(s.needle_strain_max),
         s.advisories.join(" | "),
     ];
     row.extend([

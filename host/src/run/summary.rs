@@ -161,6 +161,11 @@ pub struct RunSummary {
     pub max_strain: f64,
     /// Most gel elements inverted (`det F ≤ 0`) at once, same sampling.
     pub max_inverted_elements: usize,
+    /// Largest bending strain at the needle's outer surface, `r_o |κ|`, same sampling
+    /// ([`crate::fem::beam::CorotationalBeams::max_bending_strain`]) [-]. The needle's model
+    /// is linear elastic: a strain above its material's yield strain `σ_y / E` is a bend a
+    /// real needle would keep.
+    pub needle_strain_max: f64,
     /// Steps in which the controller reported the target unreachable (no joint update
     /// improves the objective by 1 %).
     pub unreachable_steps: usize,
@@ -261,6 +266,7 @@ pub struct Statistics {
     min_clearance: Vec<f64>,
     max_strain: f64,
     max_inverted: usize,
+    needle_strain: f64,
     last_step: usize,
     path: PathMetrics,
     sampled: Option<StrainStats>,
@@ -273,6 +279,7 @@ impl Statistics {
             min_clearance: vec![f64::INFINITY; world.obstacles.len()],
             max_strain: 0.0,
             max_inverted: 0,
+            needle_strain: 0.0,
             last_step: steps.saturating_sub(1),
             path: PathMetrics::default(),
             sampled: None,
@@ -303,6 +310,8 @@ impl<const N: usize> Observer<N> for Statistics {
             self.sampled = Some(st);
             self.max_strain = self.max_strain.max(st.max_strain);
             self.max_inverted = self.max_inverted.max(st.inverted);
+            let (bend, _) = world.needle.max_bending_strain();
+            self.needle_strain = self.needle_strain.max(bend);
         }
         Ok(())
     }
@@ -463,6 +472,7 @@ impl Statistics {
             gs_not_converged_steps: count_flag(reports, StatusFlags::NOT_CONVERGED),
             max_strain: self.max_strain,
             max_inverted_elements: self.max_inverted,
+            needle_strain_max: self.needle_strain,
             unreachable_steps: count_flag(reports, StatusFlags::TARGET_UNREACHABLE),
             limit_steps: count_flag(reports, StatusFlags::SATURATED_LIMIT),
             joints: N,

@@ -276,7 +276,7 @@ fn worst_of(rows: &[&SuiteRow]) -> Vec<String> {
     ]
 }
 
-const HEADER: [&str; 20] = [
+const HEADER: [&str; 21] = [
     "scene",
     "controller",
     "outcome",
@@ -289,6 +289,7 @@ const HEADER: [&str; 20] = [
     "min_clearance_mm",
     "target_shift_mm",
     "entry_shift_mm",
+    "needle_strain_pct",
     "steps_to_target",
     "steps_nominal",
     "gs_cap_hits",
@@ -319,6 +320,7 @@ fn cells(r: &SuiteRow) -> Vec<String> {
         cell(s.min_clearance_mm, 3),
         cell(s.target_shift_max_mm, 2),
         cell(s.entry_shift_max_mm, 2),
+        cell(100.0 * s.needle_strain_max, 2),
         s.steps_to_target.map_or("—".to_owned(), |k| k.to_string()),
         s.steps_nominal.to_string(),
         s.gs_not_converged_steps.to_string(),
