@@ -157,12 +157,13 @@ pub struct RunSummary {
     /// Steps in which a solve hit its iteration cap.
     pub gs_not_converged_steps: usize,
     /// Largest principal strain `|σ(F) − 1|` of any gel element, sampled every
-    /// [`STRAIN_EVERY`] steps and at the last [-].
+    /// [`STRAIN_EVERY`] steps and at the last; NaN once a sample was [-].
     pub max_strain: f64,
     /// Most gel elements inverted (`det F ≤ 0`) at once, same sampling.
     pub max_inverted_elements: usize,
     /// Largest bending strain at the needle's outer surface, `r_o |κ|`, same sampling
-    /// ([`crate::fem::beam::CorotationalBeams::max_bending_strain`]) [-]. The needle's model
+    /// ([`crate::fem::beam::CorotationalBeams::max_bending_strain`]; NaN once a sample was)
+    /// [-]. The needle's model
     /// is linear elastic: a strain above its material's yield strain `σ_y / E` is a bend a
     /// real needle would keep.
     pub needle_strain_max: f64,
@@ -308,12 +309,22 @@ impl<const N: usize> Observer<N> for Statistics {
         if (r.step + 1).is_multiple_of(STRAIN_EVERY) || r.step == self.last_step {
             let st = world.gel.tetra().strain_stats(world.gel.positions());
             self.sampled = Some(st);
-            self.max_strain = self.max_strain.max(st.max_strain);
+            self.max_strain = worst(self.max_strain, st.max_strain);
             self.max_inverted = self.max_inverted.max(st.inverted);
             let (bend, _) = world.needle.max_bending_strain();
-            self.needle_strain = self.needle_strain.max(bend);
+            self.needle_strain = worst(self.needle_strain, bend);
         }
         Ok(())
+    }
+}
+
+/// The larger of a running maximum and a new sample, a NaN kept from then on: `f64::max` drops
+/// a NaN, and the summary would give the last finite value of a state that went bad.
+fn worst(max: f64, sample: f64) -> f64 {
+    if max.is_nan() || sample.is_nan() {
+        f64::NAN
+    } else {
+        max.max(sample)
     }
 }
 
@@ -525,6 +536,17 @@ impl Statistics {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The gel's and the needle's largest strain were running maxima by `f64::max`, which
+    /// drops a NaN sample: a run whose state went NaN reported its last finite strain.
+    #[test]
+    fn a_nan_strain_sample_is_kept_in_the_summary_not_dropped() {
+        assert!(f64::NAN.max(0.5) == 0.5, "what f64::max does");
+        assert_eq!(worst(0.2, 0.5), 0.5);
+        assert_eq!(worst(0.5, 0.2), 0.5);
+        assert!(worst(0.5, f64::NAN).is_nan());
+        assert!(worst(f64::NAN, 0.7).is_nan(), "kept after a NaN");
+    }
 
     fn at(inserted: bool) -> StepReport {
         StepReport {
