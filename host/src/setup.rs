@@ -59,8 +59,14 @@ pub struct Plan {
     pub straighten_from_mm: f64,
     /// The lowest fraction along the path: lower than [`Plan::straighten`] where the chord
     /// passes nearer an obstacle than the path, or the shown point would be more than
-    /// [`crate::straighten::MAX_OFFSET_MM`] off it ([`crate::straighten::Straightening`]) [-].
+    /// [`Plan::straighten_max_offset_mm`] off it ([`crate::straighten::Straightening`]) [-].
     pub straighten_lowest: f64,
+    /// The bound on the shown point's distance from the path (`inverse.straighten_max_offset`)
+    /// [mm].
+    pub straighten_max_offset_mm: f64,
+    /// The distance the shown target keeps from the obstacles (`inverse.target_standoff`; 0
+    /// for the paper's update, shown the planned path) [mm].
+    pub target_standoff_mm: f64,
     /// What the plan allows but makes unlikely to succeed
     /// ([`crate::plan_check::advisories`]); empty when nothing is.
     pub advisories: Vec<String>,
@@ -203,11 +209,27 @@ impl<const N: usize> Setup<N> {
         );
         let straightening = crate::straighten::Straightening::for_scene(
             &path,
-            (scene.inverse.straighten, scene.inverse.straighten_from),
+            (
+                scene.inverse.straighten,
+                scene.inverse.straighten_from,
+                scene.inverse.straighten_max_offset,
+            ),
             scene.inverse.method,
             (lags, scene.steering_length()),
             &obstacles,
         );
+        // The paper's update is shown the planned path.
+        let straightening = match scene.inverse.method {
+            crate::scene::MethodSpec::Paper => straightening,
+            _ => straightening.with_standoff(
+                &path,
+                (
+                    scene.inverse.target_standoff,
+                    scene.inverse.straighten_max_offset,
+                ),
+                &obstacles,
+            ),
+        };
         let mut world = World::try_new(WorldParts {
             robot,
             gel,
@@ -233,6 +255,8 @@ impl<const N: usize> Setup<N> {
         plan.straighten = straightening.fraction;
         plan.straighten_from_mm = straightening.from;
         plan.straighten_lowest = straightening.lowest();
+        plan.straighten_max_offset_mm = scene.inverse.straighten_max_offset;
+        plan.target_standoff_mm = straightening.standoff;
         world.straightening = straightening;
         for a in &plan.advisories {
             tracing::warn!("scene `{}`: {a}", scene.name);
@@ -510,6 +534,8 @@ fn plan(scene: &Scene) -> Plan {
         straighten: 0.0,
         straighten_from_mm: 0.0,
         straighten_lowest: 0.0,
+        straighten_max_offset_mm: scene.inverse.straighten_max_offset,
+        target_standoff_mm: 0.0,
         advisories: Vec::new(),
     }
 }

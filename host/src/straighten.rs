@@ -1,7 +1,7 @@
 //! The target shown to the controller, straightened towards a chord of the path
 //! (`inverse.straighten`, `inverse.straighten_from`, [`SampledPath::straightened`]), never
-//! more than [`MAX_OFFSET_MM`] off the path and kept from coming nearer an obstacle than the
-//! planned path does.
+//! more than `inverse.straighten_max_offset` (default [`MAX_OFFSET_MM`]) off the path and kept
+//! from coming nearer an obstacle than the planned path does.
 //!
 //! A needle whose gel holds its shaft (a short steering length) turns its tip while it is
 //! shallow and hardly at all deep in the gel. Under `"auto"`, where it lags its path's bend, it
@@ -27,11 +27,15 @@ pub const OBSTACLE_REACH_MM: f64 = 2.0;
 /// Length of path over which the fraction returns to the one asked for, on either side of where
 /// an obstacle lowers it [mm].
 pub const RAMP_MM: f64 = 5.0;
-/// The shown point is never farther than this from the path's own point [mm]: half the
+/// The shown point is never farther than this from the path's own point by default
+/// (`inverse.straighten_max_offset`) [mm]: half the
 /// deviation from the path that makes a run that reaches its target
 /// [`crate::run::Outcome::LeftPath`] ([`crate::run::metrics::PATH_TOLERANCE_MM`]), so a tip
 /// that lags the shown point by as much again still keeps to the path's tolerance.
 pub const MAX_OFFSET_MM: f64 = crate::run::metrics::PATH_TOLERANCE_MM / 2.0;
+/// The distance the shown point keeps from an obstacle's surface where the path passes nearer,
+/// by default (`inverse.target_standoff`) [mm]; 0: none.
+pub const TARGET_STANDOFF_MM: f64 = 0.0;
 /// `inverse.straighten = "auto"` where the needle lags its path's bend: the whole way to the
 /// chord from one steering length deep (within [`MAX_OFFSET_MM`]).
 pub const AUTO_FRACTION: f64 = 1.0;
@@ -48,11 +52,69 @@ pub struct Straightening {
     pub fraction: f64,
     /// Where the chord starts: path length past the entry point [mm] (0: the entry point).
     pub from: f64,
+    /// The largest distance of a shown point from the path's own point [mm]
+    /// (`inverse.straighten_max_offset`).
+    pub max_offset: f64,
     /// Whether an obstacle lowers the fraction somewhere (below what [`MAX_OFFSET_MM`] alone
     /// allows).
     pub obstacle_limited: bool,
     /// The fraction at arc length `k · SPACING_MM` from the start tip (empty: none).
     table: Vec<f64>,
+    /// The distance the shown point keeps from every obstacle's surface where the path allows
+    /// (`inverse.target_standoff`) [mm]; 0: none.
+    pub standoff: f64,
+    /// The shift of the shown point away from the obstacles at arc length `k · SPACING_MM`
+    /// [mm] (empty: none).
+    push: Vec<Vector3<f64>>,
+}
+
+/// The obstacles' rest shapes, for their distance to a point.
+struct Nearness<'a> {
+    obstacles: &'a [ObstacleShape],
+    surfaces: Vec<Option<ClosedSurface>>,
+}
+
+impl<'a> Nearness<'a> {
+    fn new(obstacles: &'a [ObstacleShape]) -> Self {
+        let surfaces = obstacles
+            .iter()
+            .map(|o| match o {
+                ObstacleShape::Mesh(m) => ClosedSurface::new(&m.vertices, &m.triangles),
+                ObstacleShape::Sphere { .. } => None,
+            })
+            .collect();
+        Self {
+            obstacles,
+            surfaces,
+        }
+    }
+
+    /// The signed distance of `q` from obstacle `k`'s surface [mm] and the unit normal pointing
+    /// away from it (zero where it has none: at a sphere's centre, or a surface that could not
+    /// be built, whose distance is infinite).
+    fn distance(&self, k: usize, q: &Vector3<f64>) -> (f64, Vector3<f64>) {
+        match &self.obstacles[k] {
+            ObstacleShape::Sphere { center, radius } => {
+                let r = q - center;
+                let n = r.norm();
+                (n - radius, if n > 0.0 { r / n } else { Vector3::zeros() })
+            }
+            ObstacleShape::Mesh(_) => match &self.surfaces[k] {
+                Some(s) => {
+                    let (d, _, _, closest) = s.signed_distance(q);
+                    (
+                        d,
+                        if d != 0.0 {
+                            (q - closest) / d
+                        } else {
+                            Vector3::zeros()
+                        },
+                    )
+                }
+                None => (f64::INFINITY, Vector3::zeros()),
+            },
+        }
+    }
 }
 
 impl Straightening {
@@ -65,9 +127,10 @@ impl Straightening {
     /// length deep), unless an obstacle lies nearer that chord than the path: then
     /// [`AUTO_FRACTION_NEAR_OBSTACLE`] towards the chord from the entry point
     /// (`docs/benchmark.md`, "The path from one steering length deep").
+    /// Every shown point lies within `max_offset` [mm] of the path's own point.
     pub fn for_scene(
         path: &SampledPath,
-        (spec, from): (StraightenSpec, StraightenFromSpec),
+        (spec, from, max_offset): (StraightenSpec, StraightenFromSpec, f64),
         method: MethodSpec,
         (lags_its_bend, steering_length): (bool, f64),
         obstacles: &[ObstacleShape],
@@ -75,12 +138,18 @@ impl Straightening {
         let from_mm = from.from(steering_length);
         match (spec, method) {
             (_, MethodSpec::Paper) => Self::default(),
-            (StraightenSpec::Fraction(b), _) => Self::new(path, b, from_mm, obstacles),
+            (StraightenSpec::Fraction(b), _) => {
+                Self::new(path, (b, from_mm, max_offset), obstacles)
+            }
             (StraightenSpec::Auto, _) if !lags_its_bend => Self::default(),
             (StraightenSpec::Auto, _) => {
-                let deep = Self::new(path, AUTO_FRACTION, from_mm, obstacles);
+                let deep = Self::new(path, (AUTO_FRACTION, from_mm, max_offset), obstacles);
                 if deep.obstacle_limited {
-                    Self::new(path, AUTO_FRACTION_NEAR_OBSTACLE, 0.0, obstacles)
+                    Self::new(
+                        path,
+                        (AUTO_FRACTION_NEAR_OBSTACLE, 0.0, max_offset),
+                        obstacles,
+                    )
                 } else {
                     deep
                 }
@@ -89,26 +158,19 @@ impl Straightening {
     }
 
     /// The fractions along `path` for `fraction` asked for towards the chord from `from` [mm]
-    /// past the entry point, at most [`MAX_OFFSET_MM`] off the path and kept clear of
+    /// past the entry point, at most `max_offset` [mm] off the path and kept clear of
     /// `obstacles` (their rest shapes: the path and the obstacles are embedded in the gel
     /// together).
-    pub fn new(path: &SampledPath, fraction: f64, from: f64, obstacles: &[ObstacleShape]) -> Self {
+    pub fn new(
+        path: &SampledPath,
+        (fraction, from, max_offset): (f64, f64, f64),
+        obstacles: &[ObstacleShape],
+    ) -> Self {
         if fraction <= 0.0 {
             return Self::default();
         }
-        let surfaces: Vec<Option<ClosedSurface>> = obstacles
-            .iter()
-            .map(|o| match o {
-                ObstacleShape::Mesh(m) => ClosedSurface::new(&m.vertices, &m.triangles),
-                ObstacleShape::Sphere { .. } => None,
-            })
-            .collect();
-        let distance = |k: usize, q: &Vector3<f64>| match &obstacles[k] {
-            ObstacleShape::Sphere { center, radius } => (q - center).norm() - radius,
-            ObstacleShape::Mesh(_) => {
-                (surfaces[k].as_ref()).map_or(f64::INFINITY, |s| s.signed_distance(q).0)
-            }
-        };
+        let near_obstacles = Nearness::new(obstacles);
+        let distance = |k: usize, q: &Vector3<f64>| near_obstacles.distance(k, q).0;
         let n = (path.total_length() / SPACING_MM).ceil() as usize + 1;
         let levels = || {
             (0..=LEVELS)
@@ -120,7 +182,7 @@ impl Straightening {
             .map(|i| {
                 let c = i as f64 * SPACING_MM;
                 let p = path.at(c).0;
-                let near = |q: &Vector3<f64>| (q - p).norm() <= MAX_OFFSET_MM;
+                let near = |q: &Vector3<f64>| (q - p).norm() <= max_offset;
                 let clear = |q: &Vector3<f64>| {
                     (0..obstacles.len())
                         .all(|k| distance(k, q) >= distance(k, &p).min(OBSTACLE_REACH_MM))
@@ -155,21 +217,58 @@ impl Straightening {
         Self {
             fraction,
             from,
+            max_offset,
             obstacle_limited,
             table,
+            ..Self::default()
         }
+    }
+
+    /// The same, with each shown point moved away from the obstacles it is nearer than
+    /// `standoff` [mm] to (along their normals, by what it lacks), at most as far as keeps it
+    /// within `max_offset` [mm] of the path's own point. The clearance rows of the update keep
+    /// the needle `clearance_margin` from an obstacle; a target shown at that margin leaves the
+    /// tip no room to lag towards the obstacle, and a shaft held at the margin cannot advance.
+    pub fn with_standoff(
+        mut self,
+        path: &SampledPath,
+        (standoff, max_offset): (f64, f64),
+        obstacles: &[ObstacleShape],
+    ) -> Self {
+        if standoff.is_nan() || standoff <= 0.0 || obstacles.is_empty() {
+            return self;
+        }
+        let nearness = Nearness::new(obstacles);
+        let n = (path.total_length() / SPACING_MM).ceil() as usize + 1;
+        self.push = (0..n)
+            .map(|i| {
+                let c = i as f64 * SPACING_MM;
+                let (p, shown) = (path.at(c).0, self.point(path, c));
+                let mut q = shown;
+                // A few sweeps: a move away from one obstacle may bring the point nearer another.
+                for _ in 0..4 {
+                    for k in 0..obstacles.len() {
+                        let (d, normal) = nearness.distance(k, &q);
+                        if d < standoff {
+                            q += normal * (standoff - d);
+                        }
+                    }
+                }
+                let off = q - p;
+                if off.norm() > max_offset {
+                    q = p + off * (max_offset / off.norm());
+                }
+                q - shown
+            })
+            .collect();
+        self.standoff = standoff;
+        self.max_offset = self.max_offset.max(max_offset);
+        self
     }
 
     /// The fraction at arc length `c` from the start tip (linear between table points).
     pub fn at(&self, c: f64) -> f64 {
-        let Some(last) = self.table.len().checked_sub(1) else {
-            return 0.0;
-        };
-        let x = (c / SPACING_MM).clamp(0.0, last as f64);
-        let i = (x.floor() as usize).min(last);
-        let j = (i + 1).min(last);
-        let f = x - i as f64;
-        self.table[i] * (1.0 - f) + self.table[j] * f
+        interpolate(&self.table, c).unwrap_or(0.0)
     }
 
     /// The lowest fraction along the path (the asked one without obstacles in the way).
@@ -187,7 +286,7 @@ impl Straightening {
     /// `h` itself, as before the straightening (the quotient over 1 mm of the sampled path is a
     /// unit vector to within 10⁻³ up to the last millimetre).
     pub fn span(&self, path: &SampledPath, c: f64, h: f64) -> f64 {
-        if self.table.is_empty() {
+        if self.table.is_empty() && self.push.is_empty() {
             return h;
         }
         (self.point(path, c + h) - self.point(path, c))
@@ -196,10 +295,29 @@ impl Straightening {
     }
 
     /// The point shown to the controller at arc length `c` ([`SampledPath::straightened`] by
-    /// [`Straightening::at`]).
+    /// [`Straightening::at`], moved away from the obstacles by [`Straightening::with_standoff`]).
     pub fn point(&self, path: &SampledPath, c: f64) -> Vector3<f64> {
-        path.straightened(c, self.at(c), self.from)
+        path.straightened(c, self.at(c), self.from) + self.push_at(c)
     }
+
+    /// The shift away from the obstacles at arc length `c` (linear between table points) [mm].
+    fn push_at(&self, c: f64) -> Vector3<f64> {
+        interpolate(&self.push, c).unwrap_or_else(Vector3::zeros)
+    }
+}
+
+/// A table of values at arc lengths `k · SPACING_MM`, at `c` (linear between table points,
+/// the end values beyond them); `None` for an empty table.
+fn interpolate<T>(table: &[T], c: f64) -> Option<T>
+where
+    T: Copy + core::ops::Mul<f64, Output = T> + core::ops::Add<Output = T>,
+{
+    let last = table.len().checked_sub(1)?;
+    let x = (c / SPACING_MM).clamp(0.0, last as f64);
+    let i = (x.floor() as usize).min(last);
+    let j = (i + 1).min(last);
+    let f = x - i as f64;
+    Some(table[i] * (1.0 - f) + table[j] * f)
 }
 
 #[cfg(test)]
@@ -216,18 +334,21 @@ mod tests {
     #[test]
     fn straightened_target_keeps_its_distance_from_an_obstacle_on_the_chord_side() {
         let path = Scene::builtin("simple").unwrap().sampled_path().unwrap();
-        let free = Straightening::new(&path, 0.4, 0.0, &[]);
+        let free = Straightening::new(&path, (0.4, 0.0, MAX_OFFSET_MM), &[]);
         for c in [0.0, 10.0, 30.0, 59.0, 100.0] {
             assert_eq!(free.at(c), 0.4);
         }
-        assert_eq!(Straightening::new(&path, 0.0, 0.0, &[]).at(30.0), 0.0);
+        assert_eq!(
+            Straightening::new(&path, (0.0, 0.0, MAX_OFFSET_MM), &[]).at(30.0),
+            0.0
+        );
         // At mid-path, on the chord's side (+x) of the path point.
         let mid = path.approach + 0.5 * path.length();
         let (p, chord) = (path.at(mid).0, path.straightened(mid, 1.0, 0.0));
         let side = (chord - p).normalize();
         let (center, radius) = (p + side * 3.6, 3.0);
         let sphere = [ObstacleShape::Sphere { center, radius }];
-        let s = Straightening::new(&path, 0.4, 0.0, &sphere);
+        let s = Straightening::new(&path, (0.4, 0.0, MAX_OFFSET_MM), &sphere);
         assert!(s.at(mid) < 0.1, "{}", s.at(mid));
         assert!(s.lowest() < 0.1);
         assert_eq!(
@@ -259,7 +380,11 @@ mod tests {
     #[test]
     fn auto_straightens_from_one_steering_length_deep_unless_an_obstacle_is_in_the_way() {
         let path = Scene::builtin("simple").unwrap().sampled_path().unwrap();
-        let auto = (StraightenSpec::Auto, StraightenFromSpec::Auto);
+        let auto = (
+            StraightenSpec::Auto,
+            StraightenFromSpec::Auto,
+            MAX_OFFSET_MM,
+        );
         let qp = MethodSpec::Qp;
         let s = Straightening::for_scene(&path, auto, qp, (true, 13.0), &[]);
         assert_eq!((s.fraction, s.from, s.obstacle_limited), (1.0, 13.0, false));
@@ -283,9 +408,21 @@ mod tests {
         assert!((1.0..MAX_OFFSET_MM).contains(&largest(&s, 13.0)));
         assert_eq!(s.lowest(), 1.0);
         // The chord from the entry point runs 2 mm from it: held to the bound mid-way.
-        let whole = Straightening::new(&path, 1.0, 0.0, &[]);
+        let whole = Straightening::new(&path, (1.0, 0.0, MAX_OFFSET_MM), &[]);
         assert!(largest(&whole, 0.0) > 1.45);
         assert!(whole.lowest() < 0.8 && !whole.obstacle_limited);
+        // A wider bound (`inverse.straighten_max_offset`) lets the chord from the entry point
+        // whole: the same points where it held them nearer, nowhere farther than the bound.
+        let wide = Straightening::new(&path, (1.0, 0.0, 2.5), &[]);
+        assert_eq!(wide.max_offset, 2.5);
+        assert_eq!(wide.lowest(), 1.0);
+        let mut c: f64 = 0.0;
+        while c <= end {
+            let offset = (wide.point(&path, c) - path.at(c).0).norm();
+            assert!(offset <= 2.5 + 0.01, "c {c}: {offset}");
+            assert!(offset >= (whole.point(&path, c) - path.at(c).0).norm() - 1e-9);
+            c += 0.1;
+        }
         assert_eq!(s.point(&path, end), path.at(end).0);
         for none in [
             Straightening::for_scene(&path, auto, qp, (false, 13.0), &[]),
@@ -294,7 +431,11 @@ mod tests {
             assert_eq!(none.fraction, 0.0);
             assert_eq!(none.point(&path, 40.0), path.at(40.0).0);
         }
-        let given = (StraightenSpec::Fraction(0.25), StraightenFromSpec::Mm(5.0));
+        let given = (
+            StraightenSpec::Fraction(0.25),
+            StraightenFromSpec::Mm(5.0),
+            MAX_OFFSET_MM,
+        );
         let g = Straightening::for_scene(&path, given, qp, (false, 13.0), &[]);
         assert_eq!((g.fraction, g.from), (0.25, 5.0));
         // A sphere beside the deep chord, on its side of the path, 3/4 of the way down.
@@ -310,7 +451,64 @@ mod tests {
             (near.fraction, near.from),
             (AUTO_FRACTION_NEAR_OBSTACLE, 0.0)
         );
-        assert!(Straightening::new(&path, 1.0, 13.0, &sphere).obstacle_limited);
+        assert!(Straightening::new(&path, (1.0, 13.0, MAX_OFFSET_MM), &sphere).obstacle_limited);
+    }
+
+    /// `inverse.target_standoff`: a sphere 0.6 mm from the simple path at mid-depth; the shown
+    /// points are kept 1 mm from its surface (to the table's interpolation) where the path
+    /// passes nearer, moved along its normal by what they lack, nowhere more than the offset
+    /// bound from the path; the path's own points elsewhere; nothing for no standoff.
+    #[test]
+    fn shown_target_keeps_its_standoff_from_an_obstacle_the_path_passes_near() {
+        let path = Scene::builtin("simple").unwrap().sampled_path().unwrap();
+        let mid = path.approach + 0.5 * path.length();
+        let (p, chord) = (path.at(mid).0, path.straightened(mid, 1.0, 0.0));
+        let side = (chord - p).normalize();
+        let (center, radius) = (p + side * 3.6, 3.0);
+        let sphere = [ObstacleShape::Sphere { center, radius }];
+        let d = |q: Vector3<f64>| (q - center).norm() - radius;
+        let none = Straightening::default();
+        let kept = none
+            .clone()
+            .with_standoff(&path, (1.0, MAX_OFFSET_MM), &sphere);
+        assert_eq!(kept.standoff, 1.0);
+        assert_eq!(
+            none.clone()
+                .with_standoff(&path, (0.0, MAX_OFFSET_MM), &sphere),
+            none
+        );
+        assert_eq!(
+            none.clone().with_standoff(&path, (1.0, MAX_OFFSET_MM), &[]),
+            none
+        );
+        let (mut c, mut moved) = (0.0, 0.0_f64);
+        while c <= path.total_length() {
+            let (own, shown) = (path.at(c).0, kept.point(&path, c));
+            let offset = (shown - own).norm();
+            assert!(offset <= MAX_OFFSET_MM + 1e-9, "c {c}: {offset}");
+            // (Between the table's points the push is interpolated: 1 mm of slack there.)
+            if d(own) >= 1.0 + 2.0 * SPACING_MM {
+                assert!(offset < 1e-9, "c {c}: moved {offset} though 1 mm clear");
+            }
+            assert!(d(shown) >= d(own).min(1.0) - 0.05, "c {c}: {}", d(shown));
+            moved = moved.max(offset);
+            c += 0.1;
+        }
+        // At the table's points, 1 mm from the sphere wherever the path passes nearer.
+        for k in 0..=(path.total_length() / SPACING_MM) as usize {
+            let c = k as f64 * SPACING_MM;
+            let shown = kept.point(&path, c);
+            assert!(
+                d(shown) >= 1.0 - 1e-9,
+                "c {c}: {} from the sphere",
+                d(shown)
+            );
+        }
+        // The path's nearest point is 0.6 mm from the sphere: moved 0.4 mm off it.
+        assert!((moved - 0.4).abs() < 0.01, "{moved}");
+        // A bound tighter than what is lacking holds the point to it.
+        let held = none.with_standoff(&path, (1.0, 0.25), &sphere);
+        assert!((held.point(&path, mid) - p).norm() <= 0.25 + 1e-9);
     }
 
     /// The target tangent shown to the controller is the shown points' difference quotient over
@@ -321,7 +519,7 @@ mod tests {
     #[test]
     fn shown_tangent_has_unit_length_where_the_path_is_straightened() {
         let path = Scene::builtin("simple").unwrap().sampled_path().unwrap();
-        let whole = Straightening::new(&path, 1.0, 0.0, &[]);
+        let whole = Straightening::new(&path, (1.0, 0.0, MAX_OFFSET_MM), &[]);
         let none = Straightening::default();
         let (h, end) = (1.0, path.total_length());
         let mut off_unit: f64 = 0.0;

@@ -368,7 +368,7 @@ fn print_text(s: &RunSummary) {
             format!(
                 ", down to {:.0} % where an obstacle or the {} mm bound on its offset from the path limits it",
                 100.0 * s.straighten_lowest,
-                needle_host::straighten::MAX_OFFSET_MM
+                s.straighten_max_offset_mm
             )
         } else {
             String::new()
@@ -376,9 +376,17 @@ fn print_text(s: &RunSummary) {
         println!(
             "the target shown to the controller is straightened {:.0} % of the way towards the \
              path's chord from {:.1} mm past the entry point{lowest} (inverse.straighten, \
-             inverse.straighten_from); errors are measured against the planned path",
+             inverse.straighten_from, inverse.straighten_max_offset); errors are measured against the planned path",
             100.0 * s.straighten,
             s.straighten_from_mm
+        );
+    }
+    if s.target_standoff_mm > 0.0 {
+        println!(
+            "the target shown to the controller keeps {} mm from every obstacle where the path \
+             passes nearer, within {} mm of the path (inverse.target_standoff, \
+             inverse.straighten_max_offset)",
+            s.target_standoff_mm, s.straighten_max_offset_mm
         );
     }
     if let Some(m) = &s.support_motion {

@@ -99,8 +99,14 @@ pub struct RunSummary {
     pub straighten_from_mm: f64,
     /// The lowest fraction along the path: lower than `straighten` where the chord passes
     /// nearer an obstacle than the path itself, or where the shown point would be more than
-    /// [`crate::straighten::MAX_OFFSET_MM`] off the path [-].
+    /// `straighten_max_offset_mm` off the path [-].
     pub straighten_lowest: f64,
+    /// The bound on the shown target's distance from the path (`inverse.straighten_max_offset`)
+    /// [mm].
+    pub straighten_max_offset_mm: f64,
+    /// The distance the shown target keeps from the obstacles where the path passes nearer
+    /// (`inverse.target_standoff`; 0: none) [mm].
+    pub target_standoff_mm: f64,
     /// What the plan allows but makes unlikely to succeed, one sentence each
     /// ([`crate::plan_check::advisories`]: today a bending path for a needle whose steering
     /// length is under 18 mm); empty when nothing is. Said at the start, before any step.
@@ -432,6 +438,8 @@ impl Statistics {
             straighten: plan.straighten,
             straighten_from_mm: plan.straighten_from_mm,
             straighten_lowest: plan.straighten_lowest,
+            straighten_max_offset_mm: plan.straighten_max_offset_mm,
+            target_standoff_mm: plan.target_standoff_mm,
             advisories: plan.advisories.clone(),
             provenance: crate::provenance::Provenance::now(),
             steps: reports.len(),

@@ -113,6 +113,12 @@ pub(super) fn default_qp_angle_damping_max() -> f64 {
 pub(super) fn default_qp_spin_weight() -> f64 {
     InverseParams::default().qp_spin_weight
 }
+pub(super) fn default_straighten_max_offset() -> f64 {
+    crate::straighten::MAX_OFFSET_MM
+}
+pub(super) fn default_target_standoff() -> f64 {
+    crate::straighten::TARGET_STANDOFF_MM
+}
 pub(super) fn default_resume_held() -> bool {
     InverseParams::default().resume_held
 }

@@ -440,6 +440,17 @@ pub struct InverseSpec {
     /// `"auto"` (the default: one steering length).
     #[serde(default)]
     pub straighten_from: StraightenFromSpec,
+    /// The largest distance of the shown target from the path's own point [mm], in (0,
+    /// [`crate::run::metrics::PATH_TOLERANCE_MM`]] (default
+    /// [`crate::straighten::MAX_OFFSET_MM`]): where the chord runs farther from the path, the
+    /// fraction is lowered there.
+    #[serde(default = "default_straighten_max_offset")]
+    pub straighten_max_offset: f64,
+    /// The distance [mm] the target shown to the `"qp"` update keeps from every obstacle's
+    /// surface where the path passes nearer, within `straighten_max_offset` of the path's own
+    /// point ([`crate::straighten::Straightening::with_standoff`]); 0: none.
+    #[serde(default = "default_target_standoff")]
+    pub target_standoff: f64,
     /// Re-plan a `"qp"` step that its confirming solve rejected, with the Jacobian corrected by
     /// the secant along the rejected step (default false).
     #[serde(default = "default_replan_rejected")]
@@ -520,6 +531,8 @@ impl Default for InverseSpec {
             qp_horizon: HorizonSpec::Auto,
             straighten: StraightenSpec::Auto,
             straighten_from: StraightenFromSpec::Auto,
+            straighten_max_offset: default_straighten_max_offset(),
+            target_standoff: default_target_standoff(),
             replan_rejected: default_replan_rejected(),
             second_opinion: default_second_opinion(),
             qp_angle_damping_max: default_qp_angle_damping_max(),

@@ -670,13 +670,19 @@ fn straightened_path_runs_from_the_path_to_its_chord() {
 }
 
 /// `inverse.straighten` and `inverse.straighten_from`: `"auto"` by default; a fraction in
-/// [0, 1] and a length ≥ 0 are taken as given; anything else is refused naming the field
-/// (what `"auto"` resolves to: `straighten::tests`).
+/// [0, 1] and a length ≥ 0 are taken as given; `inverse.straighten_max_offset` is
+/// [`crate::straighten::MAX_OFFSET_MM`] by default and taken in (0, the path's tolerance];
+/// `inverse.target_standoff` is 0 by default and taken ≥ 0;
+/// anything else is refused naming the field (what `"auto"` resolves to: `straighten::tests`).
 #[test]
 fn straighten_is_auto_by_default_and_refused_outside_its_range() {
     let complex = Scene::builtin("complex").unwrap();
     assert_eq!(complex.inverse.straighten, StraightenSpec::Auto);
     assert_eq!(complex.inverse.straighten_from, StraightenFromSpec::Auto);
+    assert_eq!(
+        complex.inverse.straighten_max_offset,
+        crate::straighten::MAX_OFFSET_MM
+    );
     assert!(crate::plan_check::lags_its_bend(13.0, 11.5));
     assert!(!crate::plan_check::lags_its_bend(26.5, 11.5), "long ℓ");
     assert!(
@@ -687,8 +693,13 @@ fn straighten_is_auto_by_default_and_refused_outside_its_range() {
     let fixed = set(&[
         ("inverse.straighten", "0.25"),
         ("inverse.straighten_from", "7.5"),
+        ("inverse.straighten_max_offset", "3.0"),
+        ("inverse.target_standoff", "1.0"),
     ])
     .unwrap();
+    assert_eq!(fixed.inverse.straighten_max_offset, 3.0);
+    assert_eq!(fixed.inverse.target_standoff, 1.0);
+    assert_eq!(complex.inverse.target_standoff, 0.0, "none by default");
     assert_eq!(fixed.inverse.straighten, StraightenSpec::Fraction(0.25));
     assert_eq!(fixed.inverse.straighten_from, StraightenFromSpec::Mm(7.5));
     assert_eq!(fixed.inverse.straighten_from.from(26.5), 7.5);
@@ -706,6 +717,11 @@ fn straighten_is_auto_by_default_and_refused_outside_its_range() {
         ("inverse.straighten", "nan"),
         ("inverse.straighten_from", "-1.0"),
         ("inverse.straighten_from", "nan"),
+        ("inverse.straighten_max_offset", "0.0"),
+        ("inverse.straighten_max_offset", "3.01"),
+        ("inverse.straighten_max_offset", "nan"),
+        ("inverse.target_standoff", "-0.1"),
+        ("inverse.target_standoff", "nan"),
     ] {
         let e = set(&[(field, bad)]).unwrap_err();
         assert_eq!(e.field, field, "{bad}");

@@ -443,6 +443,21 @@ impl Scene {
         if let StraightenFromSpec::Mm(d) = v.straighten_from {
             non_negative("inverse.straighten_from", d, "[mm]")?;
         }
+        let (offset, tolerance) = (
+            v.straighten_max_offset,
+            crate::run::metrics::PATH_TOLERANCE_MM,
+        );
+        positive("inverse.straighten_max_offset", offset, "[mm]")?;
+        non_negative("inverse.target_standoff", v.target_standoff, "[mm]")?;
+        if offset > tolerance {
+            fail::<()>(
+                "inverse.straighten_max_offset",
+                format!(
+                    "must be ≤ {tolerance} mm, the path's tolerance: a target shown farther \
+                     from the path leads the tip off it (got {offset})"
+                ),
+            )?;
+        }
         non_negative(
             "inverse.qp_angle_damping_max",
             v.qp_angle_damping_max,
