@@ -135,7 +135,7 @@ fn cantilever(
     elements: usize,
     tip_load: [f64; 6],
     steps: usize,
-) -> (Vector3<f64>, f64, usize, f64) {
+) -> (Vector3<f64>, f64, usize, (f64, f64)) {
     let r = load_ref("cantilever.json");
     let l = r["geometry"]["L_m"].as_f64().unwrap() * 1000.0;
     let d = r["geometry"]["outer_diameter_m"].as_f64().unwrap() * 1000.0;
@@ -169,8 +169,12 @@ fn cantilever(
     let (axis, angle) = needle.orientations()[n - 1]
         .axis_angle()
         .map_or((Vector3::z_axis(), 0.0), |(a, t)| (a, t));
-    let (strain, _) = needle.max_bending_strain();
-    (tip, angle * axis.z.signum(), iterations, strain)
+    (
+        tip,
+        angle * axis.z.signum(),
+        iterations,
+        needle.max_bending_strain(),
+    )
 }
 
 #[test]
@@ -214,11 +218,13 @@ fn cantilever_matches_the_elastica_within_0_1_percent() {
 /// The needle's largest bending strain (`NeedleModel::max_bending_strain`, the summary's
 /// `needle_strain_max`) against the elastica of `cantilever.json`: a tip moment `M` bends the
 /// cantilever into a circular arc of curvature `M / EI`; a tip force normal to the rest axis
-/// puts the largest moment at the root (the reference's `root_moment_Nm`). The strain at the
-/// surface is `r_o M / EI`.
+/// puts the largest moment at the root (the reference's `root_moment_Nm`), which the model
+/// reports the needle's length from its tip (the summary's `needle_strain_from_tip_mm`). The
+/// strain at the surface is `r_o M / EI`.
 #[test]
 fn needle_bending_strain_matches_the_elastica_moment() {
     let r = load_ref("cantilever.json");
+    let l = r["geometry"]["L_m"].as_f64().unwrap() * 1000.0;
     let d = r["geometry"]["outer_diameter_m"].as_f64().unwrap() * 1000.0;
     let ei = r["material"]["EI_Nm2"].as_f64().unwrap() * 1e6; // N·mm²
     for case in r["cases"].as_array().unwrap() {
@@ -234,7 +240,14 @@ fn needle_bending_strain_matches_the_elastica_moment() {
                 case["exact"]["root_moment_Nm"].as_f64().unwrap() * 1000.0,
             ),
         };
-        let (_, _, _, strain) = cantilever(40, load, 6);
+        let (_, _, _, (strain, from_tip)) = cantilever(40, load, 6);
+        if kind != "tip_moment" {
+            assert!(
+                (from_tip - l).abs() < 1e-9 * l,
+                "{kind} {deg}°: at {from_tip} mm"
+            );
+        }
+        assert!((0.0..=l * (1.0 + 1e-12)).contains(&from_tip), "{from_tip}");
         let exact = 0.5 * d * moment / ei;
         let err = (strain - exact).abs() / exact;
         println!(

@@ -473,9 +473,22 @@ fn print_text(s: &RunSummary) {
         100.0 * s.max_strain,
         s.max_inverted_elements
     );
+    let (from_tip, depth) = (s.needle_strain_from_tip_mm, s.needle_strain_tip_depth_mm);
+    let bend_at = if s.needle_strain_max > 0.0 {
+        format!(
+            ", {from_tip:.1} mm from its tip with the tip {depth:.1} mm deep ({})",
+            if from_tip < depth {
+                "in the gel"
+            } else {
+                "outside the gel"
+            }
+        )
+    } else {
+        String::new()
+    };
     println!(
-        "needle: largest bending strain {:.2} % at its surface (its model is linear elastic: \
-         compare with its material's yield strain, σ_y / E)",
+        "needle: largest bending strain {:.2} % at its surface{bend_at} (its model is linear \
+         elastic: compare with its material's yield strain, σ_y / E)",
         100.0 * s.needle_strain_max
     );
     if s.background_factorizations + s.immediate_factorizations > 0 {

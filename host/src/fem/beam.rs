@@ -405,7 +405,7 @@ impl CorotationalBeams {
     }
 
     /// The largest bending strain at the needle's outer surface, `r_o |κ|`, over the elements'
-    /// ends at positions `x` and orientations `q`, and the element where it is [-]. Within an
+    /// ends at positions `x` and orientations `q`, and the node (element end) where it is [-]. Within an
     /// element the linear local beam's curvature varies linearly, from `(4θ̄₁ + 2θ̄₂)/ℓ₀` at its
     /// first end to `(2θ̄₁ + 4θ̄₂)/ℓ₀` at its second in each bending plane (`θ̄ᵢ` the local end
     /// rotations of the corotated frame; a circular arc has `θ̄₁ = −θ̄₂` and both ends the same
@@ -426,12 +426,25 @@ impl CorotationalBeams {
                 let kz = (4.0 * theta[a][2].v + 2.0 * theta[b][2].v) / l0;
                 r_o * ky.hypot(kz)
             };
-            let strain = end(0, 1).max(end(1, 0));
-            if strain > largest.0 || strain.is_nan() {
-                largest = (strain, e);
+            for (a, b) in [(0, 1), (1, 0)] {
+                let strain = end(a, b);
+                if strain > largest.0 || (strain.is_nan() && !largest.0.is_nan()) {
+                    largest = (strain, self.elements[e][a]);
+                }
             }
         }
         largest
+    }
+
+    /// The rest length of the elements beyond `node` [mm]: for a chain numbered from the base
+    /// (node 0) to the tip, the distance of `node` from the tip along the needle at rest.
+    pub fn rest_length_beyond(&self, node: usize) -> f64 {
+        self.elements
+            .iter()
+            .zip(&self.rest_length)
+            .filter(|(e, _)| e[0].min(e[1]) >= node)
+            .map(|(_, l)| l)
+            .sum()
     }
 
     /// Exact tangent of element `e`: the derivative of its internal force under the

@@ -186,11 +186,13 @@ impl FeModel<Beams> {
         &self.elements.beams
     }
 
-    /// The largest bending strain at the needle's surface in its current pose, and the element
-    /// where it is ([`CorotationalBeams::max_bending_strain`]) [-].
-    pub fn max_bending_strain(&self) -> (f64, usize) {
-        self.beams()
-            .max_bending_strain(self.positions(), self.orientations())
+    /// The largest bending strain at the needle's surface in its current pose [-], and where it
+    /// is: its distance from the tip along the needle [mm]
+    /// ([`CorotationalBeams::max_bending_strain`]).
+    pub fn max_bending_strain(&self) -> (f64, f64) {
+        let beams = self.beams();
+        let (strain, node) = beams.max_bending_strain(self.positions(), self.orientations());
+        (strain, beams.rest_length_beyond(node))
     }
 
     /// Includes (default) or drops the geometric stiffness of the beams in the factorised

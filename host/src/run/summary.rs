@@ -173,6 +173,12 @@ pub struct RunSummary {
     /// is linear elastic: a strain above its material's yield strain `σ_y / E` is a bend a
     /// real needle would keep.
     pub needle_strain_max: f64,
+    /// Where that strain was: its distance from the needle's tip along the needle [mm] (0 for
+    /// a needle that never bent) ...
+    pub needle_strain_from_tip_mm: f64,
+    /// ... and the tip's depth below the entry point at that sample [mm] (0 before the
+    /// puncture): a distance from the tip under the depth puts the largest bend in the gel.
+    pub needle_strain_tip_depth_mm: f64,
     /// Steps in which the controller reported the target unreachable (no joint update
     /// improves the objective by 1 %).
     pub unreachable_steps: usize,
@@ -274,6 +280,8 @@ pub struct Statistics {
     max_strain: f64,
     max_inverted: usize,
     needle_strain: f64,
+    /// Where the largest needle strain was: its distance from the tip and the tip's depth [mm].
+    needle_bend_at: (f64, f64),
     last_step: usize,
     path: PathMetrics,
     sampled: Option<StrainStats>,
@@ -287,6 +295,7 @@ impl Statistics {
             max_strain: 0.0,
             max_inverted: 0,
             needle_strain: 0.0,
+            needle_bend_at: (0.0, 0.0),
             last_step: steps.saturating_sub(1),
             path: PathMetrics::default(),
             sampled: None,
@@ -317,8 +326,13 @@ impl<const N: usize> Observer<N> for Statistics {
             self.sampled = Some(st);
             self.max_strain = worst(self.max_strain, st.max_strain);
             self.max_inverted = self.max_inverted.max(st.inverted);
-            let (bend, _) = world.needle.max_bending_strain();
-            self.needle_strain = worst(self.needle_strain, bend);
+            let (bend, from_tip) = world.needle.max_bending_strain();
+            let larger = worst(self.needle_strain, bend);
+            if larger.to_bits() != self.needle_strain.to_bits() {
+                let depth = if r.inserted { r.depth } else { 0.0 };
+                self.needle_bend_at = (from_tip, depth);
+            }
+            self.needle_strain = larger;
         }
         Ok(())
     }
@@ -492,6 +506,8 @@ impl Statistics {
             max_strain: self.max_strain,
             max_inverted_elements: self.max_inverted,
             needle_strain_max: self.needle_strain,
+            needle_strain_from_tip_mm: self.needle_bend_at.0,
+            needle_strain_tip_depth_mm: self.needle_bend_at.1,
             unreachable_steps: count_flag(reports, StatusFlags::TARGET_UNREACHABLE),
             limit_steps: count_flag(reports, StatusFlags::SATURATED_LIMIT),
             joints: N,
