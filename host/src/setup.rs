@@ -67,6 +67,8 @@ pub struct Plan {
     /// The distance the shown target keeps from the obstacles (`inverse.target_standoff`; 0
     /// for the paper's update, shown the planned path) [mm].
     pub target_standoff_mm: f64,
+    /// The needle's yield strain (`needle.yield_strain`; none: not checked) [-].
+    pub needle_yield_strain: Option<f64>,
     /// What the plan allows but makes unlikely to succeed
     /// ([`crate::plan_check::advisories`]); empty when nothing is.
     pub advisories: Vec<String>,
@@ -536,6 +538,7 @@ fn plan(scene: &Scene) -> Plan {
         straighten_lowest: 0.0,
         straighten_max_offset_mm: scene.inverse.straighten_max_offset,
         target_standoff_mm: 0.0,
+        needle_yield_strain: scene.needle.yield_strain,
         advisories: Vec::new(),
     }
 }

@@ -486,9 +486,20 @@ fn print_text(s: &RunSummary) {
     } else {
         String::new()
     };
+    let yield_note = match s.needle_yield_strain {
+        Some(y) if s.needle_yielded => format!(
+            ": past its yield strain {:.2} % (needle.yield_strain), a bend a real needle would keep",
+            100.0 * y
+        ),
+        Some(y) => format!(", within its yield strain {:.2} %", 100.0 * y),
+        None => {
+            " (its model is linear elastic: compare with its material's yield strain, σ_y / E, \
+                 or give it as needle.yield_strain)"
+                .to_owned()
+        }
+    };
     println!(
-        "needle: largest bending strain {:.2} % at its surface{bend_at} (its model is linear \
-         elastic: compare with its material's yield strain, σ_y / E)",
+        "needle: largest bending strain {:.2} % at its surface{bend_at}{yield_note}",
         100.0 * s.needle_strain_max
     );
     if s.background_factorizations + s.immediate_factorizations > 0 {

@@ -179,6 +179,12 @@ pub struct RunSummary {
     /// ... and the tip's depth below the entry point at that sample [mm] (0 before the
     /// puncture): a distance from the tip under the depth puts the largest bend in the gel.
     pub needle_strain_tip_depth_mm: f64,
+    /// The needle's yield strain given by the scene (`needle.yield_strain`; none: not
+    /// checked) [-].
+    pub needle_yield_strain: Option<f64>,
+    /// Whether the needle was bent past that yield strain at its surface (or its strain went
+    /// NaN): a real needle would keep the bend. False when none is given.
+    pub needle_yielded: bool,
     /// Steps in which the controller reported the target unreachable (no joint update
     /// improves the objective by 1 %).
     pub unreachable_steps: usize,
@@ -348,6 +354,12 @@ fn worst(max: f64, sample: f64) -> f64 {
     }
 }
 
+/// Whether a needle whose largest bending strain was `strain` was bent past its `yield_strain`
+/// (a NaN strain counts as past it: the state it was sampled from is not to be trusted).
+fn yielded(strain: f64, yield_strain: Option<f64>) -> bool {
+    yield_strain.is_some_and(|y| strain.is_nan() || strain > y)
+}
+
 /// How a run ended, for its summary.
 pub struct Ending<'a> {
     /// The run's controller.
@@ -442,6 +454,16 @@ impl Statistics {
             withdrawn: plan.insert_only && withdrawals > 0,
             path_deviation_max_mm: deviation.1,
         });
+        let needle_yielded = yielded(self.needle_strain, plan.needle_yield_strain);
+        if needle_yielded {
+            tracing::warn!(
+                "scene `{}`: the needle was bent to {:.2} % at its surface, past its yield strain \
+                 {:.2} % (needle.yield_strain): a real needle would keep the bend",
+                plan.name,
+                100.0 * self.needle_strain,
+                100.0 * plan.needle_yield_strain.unwrap_or(f64::NAN)
+            );
+        }
         RunSummary {
             scene: plan.name.clone(),
             controller: end.controller,
@@ -508,6 +530,8 @@ impl Statistics {
             needle_strain_max: self.needle_strain,
             needle_strain_from_tip_mm: self.needle_bend_at.0,
             needle_strain_tip_depth_mm: self.needle_bend_at.1,
+            needle_yield_strain: plan.needle_yield_strain,
+            needle_yielded,
             unreachable_steps: count_flag(reports, StatusFlags::TARGET_UNREACHABLE),
             limit_steps: count_flag(reports, StatusFlags::SATURATED_LIMIT),
             joints: N,
@@ -570,6 +594,17 @@ mod tests {
         assert_eq!(worst(0.5, 0.2), 0.5);
         assert!(worst(0.5, f64::NAN).is_nan());
         assert!(worst(f64::NAN, 0.7).is_nan(), "kept after a NaN");
+    }
+
+    /// `needle.yield_strain`: past it is yielded, at or under it not, a NaN strain yielded,
+    /// nothing without one.
+    #[test]
+    fn a_needle_bent_past_its_yield_strain_is_flagged() {
+        assert!(yielded(0.021, Some(0.008)));
+        assert!(!yielded(0.008, Some(0.008)));
+        assert!(!yielded(0.002, Some(0.008)));
+        assert!(yielded(f64::NAN, Some(0.008)));
+        assert!(!yielded(0.5, None));
     }
 
     fn at(inserted: bool) -> StepReport {

@@ -322,6 +322,11 @@ pub struct NeedleSpec {
     /// Number of beam elements.
     #[serde(default = "default_needle_beams")]
     pub beams: usize,
+    /// The material's yield strain `σ_y / E` [-]: a run whose needle is bent past it at its
+    /// surface says so (`needle_yielded` in the summary, a warning, the `needle:` line).
+    /// Absent (the default): not checked.
+    #[serde(default)]
+    pub yield_strain: Option<f64>,
 }
 
 impl Default for NeedleSpec {
@@ -333,6 +338,7 @@ impl Default for NeedleSpec {
             poisson_ratio: default_needle_nu(),
             density: default_needle_rho(),
             beams: default_needle_beams(),
+            yield_strain: None,
         }
     }
 }

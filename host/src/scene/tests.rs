@@ -700,6 +700,9 @@ fn straighten_is_auto_by_default_and_refused_outside_its_range() {
     assert_eq!(fixed.inverse.straighten_max_offset, 3.0);
     assert_eq!(fixed.inverse.target_standoff, 1.0);
     assert_eq!(complex.inverse.target_standoff, 0.0, "none by default");
+    assert_eq!(complex.needle.yield_strain, None, "not checked by default");
+    let given = set(&[("needle.yield_strain", "0.008")]).unwrap();
+    assert_eq!(given.needle.yield_strain, Some(0.008));
     assert_eq!(fixed.inverse.straighten, StraightenSpec::Fraction(0.25));
     assert_eq!(fixed.inverse.straighten_from, StraightenFromSpec::Mm(7.5));
     assert_eq!(fixed.inverse.straighten_from.from(26.5), 7.5);
@@ -722,6 +725,9 @@ fn straighten_is_auto_by_default_and_refused_outside_its_range() {
         ("inverse.straighten_max_offset", "nan"),
         ("inverse.target_standoff", "-0.1"),
         ("inverse.target_standoff", "nan"),
+        ("needle.yield_strain", "0.0"),
+        ("needle.yield_strain", "1.5"),
+        ("needle.yield_strain", "nan"),
     ] {
         let e = set(&[(field, bad)]).unwrap_err();
         assert_eq!(e.field, field, "{bad}");

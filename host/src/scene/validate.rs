@@ -369,6 +369,15 @@ impl Scene {
                 format!("must be between 1 and 1000 (got {})", n.beams),
             );
         }
+        if let Some(y) = n.yield_strain {
+            within(
+                "needle.yield_strain",
+                y,
+                1e-6,
+                1.0,
+                "[-] (σ_y / E, a fraction)",
+            )?;
+        }
         Ok(())
     }
 
