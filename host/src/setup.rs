@@ -223,14 +223,7 @@ impl<const N: usize> Setup<N> {
         // The paper's update is shown the planned path.
         let straightening = match scene.inverse.method {
             crate::scene::MethodSpec::Paper => straightening,
-            _ => straightening.with_standoff(
-                &path,
-                (
-                    scene.inverse.target_standoff,
-                    scene.inverse.straighten_max_offset,
-                ),
-                &obstacles,
-            ),
+            _ => straightening.with_standoff(&path, scene.inverse.target_standoff, &obstacles),
         };
         let mut world = World::try_new(WorldParts {
             robot,

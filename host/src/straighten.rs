@@ -137,11 +137,11 @@ impl Straightening {
     ) -> Self {
         let from_mm = from.from(steering_length);
         match (spec, method) {
-            (_, MethodSpec::Paper) => Self::default(),
+            (_, MethodSpec::Paper) => Self::none(max_offset),
             (StraightenSpec::Fraction(b), _) => {
                 Self::new(path, (b, from_mm, max_offset), obstacles)
             }
-            (StraightenSpec::Auto, _) if !lags_its_bend => Self::default(),
+            (StraightenSpec::Auto, _) if !lags_its_bend => Self::none(max_offset),
             (StraightenSpec::Auto, _) => {
                 let deep = Self::new(path, (AUTO_FRACTION, from_mm, max_offset), obstacles);
                 if deep.obstacle_limited {
@@ -167,7 +167,7 @@ impl Straightening {
         obstacles: &[ObstacleShape],
     ) -> Self {
         if fraction <= 0.0 {
-            return Self::default();
+            return Self::none(max_offset);
         }
         let near_obstacles = Nearness::new(obstacles);
         let distance = |k: usize, q: &Vector3<f64>| near_obstacles.distance(k, q).0;
@@ -224,15 +224,24 @@ impl Straightening {
         }
     }
 
+    /// The planned path itself, shown points bounded by `max_offset` [mm] (for
+    /// [`Straightening::with_standoff`]).
+    pub fn none(max_offset: f64) -> Self {
+        Self {
+            max_offset,
+            ..Self::default()
+        }
+    }
+
     /// The same, with each shown point moved away from the obstacles it is nearer than
     /// `standoff` [mm] to (along their normals, by what it lacks), at most as far as keeps it
-    /// within `max_offset` [mm] of the path's own point. The clearance rows of the update keep
+    /// within [`Straightening::max_offset`] of the path's own point. The clearance rows of the update keep
     /// the needle `clearance_margin` from an obstacle; a target shown at that margin leaves the
     /// tip no room to lag towards the obstacle, and a shaft held at the margin cannot advance.
     pub fn with_standoff(
         mut self,
         path: &SampledPath,
-        (standoff, max_offset): (f64, f64),
+        standoff: f64,
         obstacles: &[ObstacleShape],
     ) -> Self {
         if standoff.is_nan() || standoff <= 0.0 || obstacles.is_empty() {
@@ -255,14 +264,13 @@ impl Straightening {
                     }
                 }
                 let off = q - p;
-                if off.norm() > max_offset {
-                    q = p + off * (max_offset / off.norm());
+                if off.norm() > self.max_offset {
+                    q = p + off * (self.max_offset / off.norm());
                 }
                 q - shown
             })
             .collect();
         self.standoff = standoff;
-        self.max_offset = self.max_offset.max(max_offset);
         self
     }
 
@@ -467,20 +475,11 @@ mod tests {
         let (center, radius) = (p + side * 3.6, 3.0);
         let sphere = [ObstacleShape::Sphere { center, radius }];
         let d = |q: Vector3<f64>| (q - center).norm() - radius;
-        let none = Straightening::default();
-        let kept = none
-            .clone()
-            .with_standoff(&path, (1.0, MAX_OFFSET_MM), &sphere);
+        let none = Straightening::none(MAX_OFFSET_MM);
+        let kept = none.clone().with_standoff(&path, 1.0, &sphere);
         assert_eq!(kept.standoff, 1.0);
-        assert_eq!(
-            none.clone()
-                .with_standoff(&path, (0.0, MAX_OFFSET_MM), &sphere),
-            none
-        );
-        assert_eq!(
-            none.clone().with_standoff(&path, (1.0, MAX_OFFSET_MM), &[]),
-            none
-        );
+        assert_eq!(none.clone().with_standoff(&path, 0.0, &sphere), none);
+        assert_eq!(none.clone().with_standoff(&path, 1.0, &[]), none);
         let (mut c, mut moved) = (0.0, 0.0_f64);
         while c <= path.total_length() {
             let (own, shown) = (path.at(c).0, kept.point(&path, c));
@@ -507,7 +506,7 @@ mod tests {
         // The path's nearest point is 0.6 mm from the sphere: moved 0.4 mm off it.
         assert!((moved - 0.4).abs() < 0.01, "{moved}");
         // A bound tighter than what is lacking holds the point to it.
-        let held = none.with_standoff(&path, (1.0, 0.25), &sphere);
+        let held = Straightening::none(0.25).with_standoff(&path, 1.0, &sphere);
         assert!((held.point(&path, mid) - p).norm() <= 0.25 + 1e-9);
     }
 
