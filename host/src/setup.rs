@@ -69,6 +69,8 @@ pub struct Plan {
     pub target_standoff_mm: f64,
     /// The needle's yield strain (`needle.yield_strain`; none: not checked) [-].
     pub needle_yield_strain: Option<f64>,
+    /// Whether the controller keeps the needle's bends under it ([`strain_bounded`]).
+    pub needle_strain_bounded: bool,
     /// What the plan allows but makes unlikely to succeed
     /// ([`crate::plan_check::advisories`]); empty when nothing is.
     pub advisories: Vec<String>,
@@ -343,8 +345,20 @@ pub fn step_params(scene: &Scene) -> StepParams {
         dt: scene.robot.dt,
         max_base_step: scene.inverse.max_base_step,
         max_entry_shift: scene.inverse.max_entry_shift.unwrap_or(f64::INFINITY),
+        yield_strain: match scene.needle.yield_strain {
+            Some(y) if strain_bounded(scene) => y,
+            _ => f64::INFINITY,
+        },
         entry_tilt: scene.inverse.entry_tilt.angle(i.surface_friction),
     }
+}
+
+/// Whether the controller keeps the needle's bends under its yield strain: a `"qp"` update
+/// with `needle.yield_strain` given and `inverse.bound_strain` on.
+pub fn strain_bounded(scene: &Scene) -> bool {
+    scene.needle.yield_strain.is_some()
+        && scene.inverse.bound_strain
+        && scene.inverse.method == crate::scene::MethodSpec::Qp
 }
 
 /// The gel model's parameters of `scene` for a gel of `nodes` nodes (the defaults that depend
@@ -532,6 +546,7 @@ fn plan(scene: &Scene) -> Plan {
         straighten_max_offset_mm: scene.inverse.straighten_max_offset,
         target_standoff_mm: 0.0,
         needle_yield_strain: scene.needle.yield_strain,
+        needle_strain_bounded: strain_bounded(scene),
         advisories: Vec::new(),
     }
 }

@@ -486,12 +486,18 @@ fn print_text(s: &RunSummary) {
     } else {
         String::new()
     };
+    let bound = if s.needle_strain_bounded {
+        " under the controller's bound (inverse.bound_strain)"
+    } else {
+        ""
+    };
     let yield_note = match s.needle_yield_strain {
         Some(y) if s.needle_yielded => format!(
-            ": past its yield strain {:.2} % (needle.yield_strain), a bend a real needle would keep",
+            ": past its yield strain {:.2} % (needle.yield_strain){bound}, a bend a real needle \
+             would keep",
             100.0 * y
         ),
-        Some(y) => format!(", within its yield strain {:.2} %", 100.0 * y),
+        Some(y) => format!(", within its yield strain {:.2} %{bound}", 100.0 * y),
         None => {
             " (its model is linear elastic: compare with its material's yield strain, σ_y / E, \
                  or give it as needle.yield_strain)"

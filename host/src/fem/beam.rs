@@ -416,8 +416,21 @@ impl CorotationalBeams {
         x: &[Vector3<f64>],
         q: &[UnitQuaternion<f64>],
     ) -> (f64, usize) {
-        let r_o = 0.5 * self.section.outer_diameter;
+        let strains = self.bending_strains(x, q);
         let mut largest = (0.0, 0);
+        for (node, &strain) in strains.iter().enumerate() {
+            if strain > largest.0 || (strain.is_nan() && !largest.0.is_nan()) {
+                largest = (strain, node);
+            }
+        }
+        largest
+    }
+
+    /// The bending strain at the needle's outer surface at each node: the largest of its
+    /// elements' ends there ([`Self::max_bending_strain`]; NaN where one is NaN) [-].
+    pub fn bending_strains(&self, x: &[Vector3<f64>], q: &[UnitQuaternion<f64>]) -> Vec<f64> {
+        let r_o = self.outer_radius();
+        let mut strains = vec![0.0; x.len()];
         for e in 0..self.elements.len() {
             let (_, theta) = self.local_kinematics::<D1>(e, x, q);
             let l0 = self.rest_length[e];
@@ -428,12 +441,18 @@ impl CorotationalBeams {
             };
             for (a, b) in [(0, 1), (1, 0)] {
                 let strain = end(a, b);
-                if strain > largest.0 || (strain.is_nan() && !largest.0.is_nan()) {
-                    largest = (strain, self.elements[e][a]);
+                let s = &mut strains[self.elements[e][a]];
+                if strain > *s || (strain.is_nan() && !s.is_nan()) {
+                    *s = strain;
                 }
             }
         }
-        largest
+        strains
+    }
+
+    /// The needle's outer radius [mm].
+    pub fn outer_radius(&self) -> f64 {
+        0.5 * self.section.outer_diameter
     }
 
     /// The rest length of the elements beyond `node` [mm]: for a chain numbered from the base

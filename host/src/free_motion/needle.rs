@@ -195,6 +195,13 @@ impl FeModel<Beams> {
         (strain, beams.rest_length_beyond(node))
     }
 
+    /// The bending strain at the needle's surface at each node in its current pose [-]
+    /// ([`CorotationalBeams::bending_strains`]).
+    pub fn bending_strains(&self) -> Vec<f64> {
+        self.beams()
+            .bending_strains(self.positions(), self.orientations())
+    }
+
     /// Includes (default) or drops the geometric stiffness of the beams in the factorised
     /// matrix (see [`CorotationalBeams::set_geometric_stiffness`]).
     pub fn set_geometric_stiffness(&mut self, on: bool) {

@@ -95,6 +95,9 @@ pub struct StepMetrics {
     /// The smallest distance of any joint to a position limit, as a fraction of its half range
     /// (1: mid-range, 0: at a limit; see [`crate::step::StepReport::limit_margin`]).
     pub limit_margin: f64,
+    /// The needle's largest bending strain at its surface after the step [-]
+    /// (`crate::free_motion::NeedleModel::max_bending_strain`).
+    pub needle_strain: f64,
 }
 
 /// Writes [`StepMetrics`] rows to a CSV file.
@@ -141,6 +144,7 @@ impl MetricsWriter {
         );
         header.extend((1..=joints).map(|j| format!("q{j}_rad")));
         header.push("limit_margin".into());
+        header.push("needle_strain".into());
         out.write_record(&header).map_err(err)?;
         Ok(Self {
             out,
@@ -171,6 +175,7 @@ impl MetricsWriter {
         row.extend(m.time_ms.iter().map(|v| v.to_string()));
         row.extend((0..self.joints).map(|j| m.q.get(j).copied().unwrap_or(f64::NAN).to_string()));
         row.push(m.limit_margin.to_string());
+        row.push(m.needle_strain.to_string());
         self.out
             .write_record(&row)
             .map_err(|e| OutputError::new(&self.file, e))

@@ -47,6 +47,7 @@ impl<const N: usize> Observer<N> for MetricsCsv {
             ],
             q: r.q,
             limit_margin: r.limit_margin,
+            needle_strain: world.needle.max_bending_strain().0,
         })
     }
 

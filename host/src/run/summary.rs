@@ -167,10 +167,9 @@ pub struct RunSummary {
     pub max_strain: f64,
     /// Most gel elements inverted (`det F ≤ 0`) at once, same sampling.
     pub max_inverted_elements: usize,
-    /// Largest bending strain at the needle's outer surface, `r_o |κ|`, same sampling
-    /// ([`crate::fem::beam::CorotationalBeams::max_bending_strain`]; NaN once a sample was)
-    /// [-]. The needle's model
-    /// is linear elastic: a strain above its material's yield strain `σ_y / E` is a bend a
+    /// Largest bending strain at the needle's outer surface, `r_o |κ|`, after every step
+    /// ([`crate::fem::beam::CorotationalBeams::max_bending_strain`]; NaN once a step's was)
+    /// [-]. The needle's model is linear elastic: a strain above its material's yield strain `σ_y / E` is a bend a
     /// real needle would keep.
     pub needle_strain_max: f64,
     /// Where that strain was: its distance from the needle's tip along the needle [mm] (0 for
@@ -182,6 +181,9 @@ pub struct RunSummary {
     /// The needle's yield strain given by the scene (`needle.yield_strain`; none: not
     /// checked) [-].
     pub needle_yield_strain: Option<f64>,
+    /// Whether the controller kept the needle's largest bends under that yield strain
+    /// (`inverse.bound_strain`, the `"qp"` update; false without a yield strain).
+    pub needle_strain_bounded: bool,
     /// Whether the needle was bent past that yield strain at its surface (or its strain went
     /// NaN): a real needle would keep the bend. False when none is given.
     pub needle_yielded: bool,
@@ -332,14 +334,14 @@ impl<const N: usize> Observer<N> for Statistics {
             self.sampled = Some(st);
             self.max_strain = worst(self.max_strain, st.max_strain);
             self.max_inverted = self.max_inverted.max(st.inverted);
-            let (bend, from_tip) = world.needle.max_bending_strain();
-            let larger = worst(self.needle_strain, bend);
-            if larger.to_bits() != self.needle_strain.to_bits() {
-                let depth = if r.inserted { r.depth } else { 0.0 };
-                self.needle_bend_at = (from_tip, depth);
-            }
-            self.needle_strain = larger;
         }
+        let (bend, from_tip) = world.needle.max_bending_strain();
+        let larger = worst(self.needle_strain, bend);
+        if larger.to_bits() != self.needle_strain.to_bits() {
+            let depth = if r.inserted { r.depth } else { 0.0 };
+            self.needle_bend_at = (from_tip, depth);
+        }
+        self.needle_strain = larger;
         Ok(())
     }
 }
@@ -531,6 +533,7 @@ impl Statistics {
             needle_strain_from_tip_mm: self.needle_bend_at.0,
             needle_strain_tip_depth_mm: self.needle_bend_at.1,
             needle_yield_strain: plan.needle_yield_strain,
+            needle_strain_bounded: plan.needle_strain_bounded,
             needle_yielded,
             unreachable_steps: count_flag(reports, StatusFlags::TARGET_UNREACHABLE),
             limit_steps: count_flag(reports, StatusFlags::SATURATED_LIMIT),

@@ -164,8 +164,9 @@ impl fmt::Display for StopReason {
             Self::Blocked { steps, seconds } => write!(
                 f,
                 "blocked: for {seconds:.1} s ({steps} steps) a clearance row (an obstacle's \
-                 margin, or the bound on the entry point's shift) held the needle, the target \
-                 stayed out of reach and the tip did not advance; stopped rather than push past it"
+                 margin, the bound on the entry point's shift, or the needle's yield strain) \
+                 held the needle, the target stayed out of reach and the tip did not advance; \
+                 stopped rather than push past it"
             ),
             Self::Interrupted => write!(f, "stopped by the caller"),
         }

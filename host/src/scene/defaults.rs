@@ -119,6 +119,9 @@ pub(super) fn default_straighten_max_offset() -> f64 {
 pub(super) fn default_target_standoff() -> f64 {
     crate::straighten::TARGET_STANDOFF_MM
 }
+pub(super) fn default_bound_strain() -> bool {
+    true
+}
 pub(super) fn default_resume_held() -> bool {
     InverseParams::default().resume_held
 }

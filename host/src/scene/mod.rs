@@ -457,6 +457,12 @@ pub struct InverseSpec {
     /// point ([`crate::straighten::Straightening::with_standoff`]); 0: none.
     #[serde(default = "default_target_standoff")]
     pub target_standoff: f64,
+    /// With a yield strain for the needle (`needle.yield_strain`), the `"qp"` update keeps the
+    /// needle's largest bends under it, as clearance rows
+    /// ([`crate::step::observe::bending_rows`]); false: the strain is only checked (default
+    /// true).
+    #[serde(default = "default_bound_strain")]
+    pub bound_strain: bool,
     /// Re-plan a `"qp"` step that its confirming solve rejected, with the Jacobian corrected by
     /// the secant along the rejected step (default false).
     #[serde(default = "default_replan_rejected")]
@@ -539,6 +545,7 @@ impl Default for InverseSpec {
             straighten_from: StraightenFromSpec::Auto,
             straighten_max_offset: default_straighten_max_offset(),
             target_standoff: default_target_standoff(),
+            bound_strain: default_bound_strain(),
             replan_rejected: default_replan_rejected(),
             second_opinion: default_second_opinion(),
             qp_angle_damping_max: default_qp_angle_damping_max(),

@@ -671,14 +671,38 @@ fn straightened_path_runs_from_the_path_to_its_chord() {
 
 /// `needle.yield_strain`: absent by default (not checked); a fraction in [10⁻⁶, 1] is taken
 /// as given; anything else is refused naming the field (what a run does with it:
-/// `run::summary::tests::a_needle_bent_past_its_yield_strain_is_flagged`).
+/// `run::summary::tests::a_needle_bent_past_its_yield_strain_is_flagged`). Given, the `"qp"`
+/// update keeps the needle under it unless `inverse.bound_strain = false`; the paper's update
+/// has no rows to keep it with.
 #[test]
 fn needle_yield_strain_is_optional_and_refused_outside_its_range() {
+    use crate::setup::{step_params, strain_bounded};
     let simple = Scene::builtin("simple").unwrap();
     assert_eq!(simple.needle.yield_strain, None, "not checked by default");
+    assert!(simple.inverse.bound_strain, "on by default");
+    assert!(!strain_bounded(&simple), "nothing to bound it by");
+    assert_eq!(step_params(&simple).yield_strain, f64::INFINITY);
     let set = |o: &[(&str, &str)]| overridden(&simple, o);
     let given = set(&[("needle.yield_strain", "0.008")]).unwrap();
     assert_eq!(given.needle.yield_strain, Some(0.008));
+    assert!(strain_bounded(&given));
+    assert_eq!(step_params(&given).yield_strain, 0.008);
+    for off in [
+        [
+            ("needle.yield_strain", "0.008"),
+            ("inverse.bound_strain", "false"),
+        ],
+        [
+            ("needle.yield_strain", "0.008"),
+            ("inverse.method", "\"paper\""),
+        ],
+    ] {
+        let s = set(&off).unwrap();
+        assert!(!strain_bounded(&s), "{off:?}");
+        assert_eq!(step_params(&s).yield_strain, f64::INFINITY, "{off:?}");
+    }
+    let e = set(&[("inverse.bound_strain", "1")]).unwrap_err();
+    assert_eq!(e.field, "inverse.bound_strain");
     for bad in ["0.0", "-0.01", "1.5", "nan", "\"steel\""] {
         let e = set(&[("needle.yield_strain", bad)]).unwrap_err();
         assert_eq!(e.field, "needle.yield_strain", "{bad}");

@@ -113,22 +113,123 @@ pub fn rows_behind(max_base_step: f64) -> usize {
 /// closest surface point, through its triangle's vertices), observed after the free motion;
 /// the `NCLEAR` nearest obstacles when there are more. Then, as the capacity allows, the rows
 /// of the inserted needle points every [`BEHIND_SPACING_MM`] behind each nearest point over the
-/// step's largest advance `max_base_step` ([`rows_behind`]), lowest clearance first. With
-/// a bound on the entry point's shift (`max_entry_shift`) its row comes first ([`entry_shift_row`]).
-/// None before puncture (nothing is inserted).
+/// step's largest advance `max_base_step` ([`rows_behind`]), lowest clearance first. With a
+/// bound on the entry point's shift (`max_entry_shift`) its row comes first
+/// ([`entry_shift_row`]), and with a yield strain (`yield_strain`) the rows of the most bent nodes next
+/// ([`bending_rows`], also before the puncture). No obstacle row before puncture (nothing is
+/// inserted).
 pub fn clearance_observations<const N: usize>(
     world: &World<N>,
     free: &FreePositions,
     params: &StepParams,
 ) -> Vec<ClearanceObservation> {
+    let bend = bending_rows(world, free, params.yield_strain);
     let depth = world.depth();
     if !world.punctured || depth <= 0.0 {
-        return Vec::new();
+        return bend;
     }
     let drag = entry_shift_row(world, free, params.max_entry_shift);
-    let mut rows = obstacle_rows(world, free, params.max_base_step, depth, drag.is_some());
-    if let Some(d) = drag {
-        rows.insert(0, d);
+    let reserved = bend.len() + usize::from(drag.is_some());
+    let obstacles = obstacle_rows(world, free, params.max_base_step, depth, reserved);
+    drag.into_iter().chain(bend).chain(obstacles).collect()
+}
+
+/// The clearance a bending row gives a straight needle [mm]: the row's value falls linearly
+/// from it to 0 at the yield strain, so the QP's `clearance_margin` (0.2 mm by default) keeps
+/// the strain a tenth under the yield strain.
+pub const BEND_ROW_SCALE_MM: f64 = 2.0;
+
+/// The share of the yield strain from which a node gets a bending row [-]: a node bent less
+/// cannot pass the yield strain within a step of the trust region.
+const BEND_ROW_FROM: f64 = 0.5;
+
+/// The most bending rows of a frame (the nodes bent most, each the most of its neighbours).
+pub const BEND_ROWS: usize = 2;
+
+/// The bound `ε ≤ ε_y` on the needle's bending strain (`yield_strain`, `+∞`: none) as
+/// clearance rows, at most [`BEND_ROWS`]: at each node bent more than [`BEND_ROW_FROM`] of
+/// `ε_y` and no less than its neighbours (most bent first), the clearance
+/// `S (1 − ε/ε_y)` ([`BEND_ROW_SCALE_MM`] = `S`), linearised through the second difference
+/// `d = x₋ − 2x + x₊` of the node's neighbourhood (the clamp's: nodes 0, 1, 2): the strain
+/// `ε ≈ r |d⊥| / ℓ²` (`r` the outer radius, `ℓ²` the product of the two element lengths,
+/// `d⊥` across the needle) grows along `d⊥`, so the row is `S r / (ε_y ℓ²)` times `d`,
+/// its clearance growing along `−d⊥ / |d⊥|`.
+pub fn bending_rows<const N: usize>(
+    world: &World<N>,
+    free: &FreePositions,
+    yield_strain: f64,
+) -> Vec<ClearanceObservation> {
+    if !yield_strain.is_finite() || yield_strain <= 0.0 {
+        return Vec::new();
+    }
+    bending_rows_of(
+        world.needle.positions(),
+        &free.needle,
+        &world.needle.bending_strains(),
+        world.needle.beams().outer_radius(),
+        yield_strain,
+    )
+}
+
+/// [`bending_rows`] of a needle whose nodes are at `nodes` at the start of the step and at
+/// `free` after its free motion, bent by `strains` at them, of outer radius `radius` [mm].
+fn bending_rows_of(
+    nodes: &[Vector3<f64>],
+    free: &[Vector3<f64>],
+    strains: &[f64],
+    radius: f64,
+    yield_strain: f64,
+) -> Vec<ClearanceObservation> {
+    let n = strains.len().min(nodes.len()).min(free.len());
+    if n < 3 {
+        return Vec::new();
+    }
+    let mut bent: Vec<(f64, usize)> = (0..n)
+        .filter(|&k| {
+            let s = strains[k];
+            s >= BEND_ROW_FROM * yield_strain
+                && (k == 0 || strains[k - 1] <= s)
+                && (k + 1 == n || strains[k + 1] <= s)
+        })
+        .map(|k| (strains[k], k))
+        .collect();
+    bent.sort_by(|a, b| b.0.total_cmp(&a.0));
+    let mut centres: Vec<usize> = Vec::new();
+    let mut rows = Vec::new();
+    for (strain, k) in bent {
+        let c = k.clamp(1, n - 2);
+        if rows.len() == BEND_ROWS || centres.contains(&c) {
+            continue;
+        }
+        let (a, b) = (nodes[c] - nodes[c - 1], nodes[c + 1] - nodes[c]);
+        let d = b - a;
+        let along = (a + b).try_normalize(f64::MIN_POSITIVE);
+        let across = along.map(|t| d - t * t.dot(&d));
+        let Some(normal) = across.and_then(|v| v.try_normalize(1e-12)) else {
+            continue;
+        };
+        let l2 = a.norm() * b.norm();
+        let g = BEND_ROW_SCALE_MM * radius / (yield_strain * l2);
+        if !g.is_finite() {
+            continue;
+        }
+        centres.push(c);
+        rows.push(ClearanceObservation {
+            needle: Observation {
+                model: Model::Needle,
+                map: PointMap::weighted([
+                    (Some(6 * (c - 1)), g),
+                    (Some(6 * c), -2.0 * g),
+                    (Some(6 * (c + 1)), g),
+                ]),
+                a: Matrix3::identity(),
+                free: (free[c - 1] - 2.0 * free[c] + free[c + 1]) * g,
+            },
+            obstacle: Vec::new(),
+            clearance: BEND_ROW_SCALE_MM * (1.0 - strain / yield_strain),
+            normal: -normal,
+            current: d * g,
+        });
     }
     rows
 }
@@ -153,18 +254,18 @@ fn entry_shift_row<const N: usize>(
     })
 }
 
-/// The obstacles' rows of [`clearance_observations`], one slot fewer when `reserved`.
+/// The obstacles' rows of [`clearance_observations`], `reserved` slots fewer.
 fn obstacle_rows<const N: usize>(
     world: &World<N>,
     free: &FreePositions,
     max_base_step: f64,
     depth: f64,
-    reserved: bool,
+    reserved: usize,
 ) -> Vec<ClearanceObservation> {
-    if world.obstacles.is_empty() {
+    let capacity = NCLEAR.saturating_sub(reserved);
+    if world.obstacles.is_empty() || capacity == 0 {
         return Vec::new();
     }
-    let capacity = NCLEAR - usize::from(reserved);
     let nodes = world.needle.positions();
     let n = nodes.len();
     // Arc length from the tip to each node.
@@ -420,6 +521,78 @@ pub fn fill_header<const N: usize>(
 #[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
+
+    /// Nodes every `h` mm along a circular arc of curvature `k` [1/mm] from the origin along x,
+    /// bending towards +z.
+    fn arc(k: f64, h: f64, n: usize) -> Vec<Vector3<f64>> {
+        (0..n)
+            .map(|i| {
+                let s = i as f64 * h;
+                Vector3::new((k * s).sin() / k, 0.0, (1.0 - (k * s).cos()) / k)
+            })
+            .collect()
+    }
+
+    /// A bending row's linear model, `clearance + n·(free − current)` as the frame takes it
+    /// (`ConstraintSet::fill_clearances`), against its value `S (1 − ε/ε_y)` after the needle
+    /// bends more: from an arc at 90 % of the yield strain to arcs 5 % more and less bent,
+    /// and by finite differences of 10⁻⁶ of the curvature (within 1 %: the second difference
+    /// over the element lengths at the start follows the curvature to `O((κ h)²)`).
+    #[test]
+    fn a_bending_row_predicts_the_strain_of_a_needle_bent_further() {
+        let (r, h, yield_strain) = (0.34, 3.0, 0.01);
+        let k1 = 0.9 * yield_strain / r;
+        let nodes = arc(k1, h, 12);
+        let strains = vec![r * k1; nodes.len()];
+        let model = |k2: f64| {
+            let free = arc(k2, h, 12);
+            let rows = bending_rows_of(&nodes, &free, &strains, r, yield_strain);
+            assert_eq!(rows.len(), BEND_ROWS);
+            rows.iter()
+                .map(|row| row.clearance + row.normal.dot(&(row.needle.free - row.current)))
+                .collect::<Vec<_>>()
+        };
+        let exact = |k: f64| BEND_ROW_SCALE_MM * (1.0 - r * k / yield_strain);
+        for k2 in [k1, 1.05 * k1, 0.95 * k1] {
+            for predicted in model(k2) {
+                assert!(
+                    (predicted - exact(k2)).abs() < 1e-3,
+                    "curvature {k2}: predicted {predicted} mm against {} mm",
+                    exact(k2)
+                );
+            }
+        }
+        let dk = 1e-6 * k1;
+        for (up, down) in model(k1 + dk).iter().zip(model(k1 - dk)) {
+            let slope = (up - down) / (2.0 * dk);
+            let expected = -BEND_ROW_SCALE_MM * r / yield_strain;
+            assert!(
+                (slope / expected - 1.0).abs() < 1e-2,
+                "d clearance / d curvature {slope} against {expected}"
+            );
+        }
+    }
+
+    /// Rows go to the nodes bent most, each the most of its neighbours and past half the
+    /// yield strain, the clamp's on nodes 0, 1, 2; none when no node is bent that far.
+    #[test]
+    fn bending_rows_go_to_the_most_bent_nodes() {
+        let (r, yield_strain) = (0.34, 0.01);
+        let nodes = arc(0.01, 3.0, 9);
+        let share = [0.3, 0.8, 0.6, 0.2, 0.55, 0.7, 0.65, 0.1, 0.0];
+        let strains: Vec<f64> = share.iter().map(|s| s * yield_strain).collect();
+        let rows = bending_rows_of(&nodes, &nodes, &strains, r, yield_strain);
+        let centre = |row: &ClearanceObservation| row.needle.map.blocks[1].0 / 6;
+        assert_eq!(rows.iter().map(centre).collect::<Vec<_>>(), [1, 5]);
+        assert!((rows[0].clearance - 0.2 * BEND_ROW_SCALE_MM).abs() < 1e-12);
+        // The clamp's node alone bent: its row on nodes 0, 1, 2.
+        let mut clamp = vec![0.0; 9];
+        clamp[0] = 0.9 * yield_strain;
+        let rows = bending_rows_of(&nodes, &nodes, &clamp, r, yield_strain);
+        assert_eq!(rows.iter().map(centre).collect::<Vec<_>>(), [1]);
+        let low: Vec<f64> = strains.iter().map(|s| 0.6 * s).collect();
+        assert!(bending_rows_of(&nodes, &nodes, &low, r, yield_strain).is_empty());
+    }
 
     /// A heading tilted past the bound is turned in the plane of the heading and the normal to
     /// exactly the bound, its length kept; one within the bound, or along the normal, is left.

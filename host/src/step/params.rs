@@ -175,6 +175,10 @@ pub struct StepParams {
     /// (`inverse.max_entry_shift`; `+∞`: none) [mm]: a clearance row of the frame
     /// ([`super::observe::clearance_observations`]).
     pub max_entry_shift: f64,
+    /// The needle's yield strain (`needle.yield_strain`; `+∞`: none) [-]: the most bent
+    /// nodes' strains as clearance rows of the frame, so that the controller keeps the
+    /// needle's bend under it ([`super::observe::bending_rows`]).
+    pub yield_strain: f64,
     /// The largest angle [rad] between the target's heading shown to the controller and the
     /// gel's inward normal at the entry point once the tip has slid on the surface before
     /// puncture ([`crate::world::World::tip_slid`]; `inverse.entry_tilt`, by default 0.9 of
@@ -191,6 +195,7 @@ impl Default for StepParams {
             dt: 0.04,
             max_base_step: 5.0,
             max_entry_shift: f64::INFINITY,
+            yield_strain: f64::INFINITY,
             entry_tilt: EntryTilt::default().angle(Interaction::default().surface_friction),
         }
     }
