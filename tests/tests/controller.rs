@@ -327,7 +327,9 @@ fn a_needle_given_its_yield_strain_is_kept_under_it() {
     );
     assert!(!free.needle_strain_bounded && free.needle_yielded);
     assert!(free.needle_strain_max > 0.015, "{}", free.needle_strain_max);
+    assert!(free.needle_yield_steps > 50, "{}", free.needle_yield_steps);
     assert!(bounded.needle_strain_bounded && !bounded.needle_yielded);
+    assert_eq!(bounded.needle_yield_steps, 0);
     assert!(
         bounded.needle_strain_max <= 0.01,
         "{}",

@@ -493,9 +493,10 @@ fn print_text(s: &RunSummary) {
     };
     let yield_note = match s.needle_yield_strain {
         Some(y) if s.needle_yielded => format!(
-            ": past its yield strain {:.2} % (needle.yield_strain){bound}, a bend a real needle \
-             would keep",
-            100.0 * y
+            ": past its yield strain {:.2} % (needle.yield_strain) after {} of its steps{bound}, \
+             a bend a real needle would keep",
+            100.0 * y,
+            s.needle_yield_steps
         ),
         Some(y) => format!(", within its yield strain {:.2} %{bound}", 100.0 * y),
         None => {

@@ -187,6 +187,9 @@ pub struct RunSummary {
     /// Whether the needle was bent past that yield strain at its surface (or its strain went
     /// NaN): a real needle would keep the bend. False when none is given.
     pub needle_yielded: bool,
+    /// How many steps ended with the needle bent past that yield strain (or its strain NaN):
+    /// a brief peak or a lasting bend. 0 when none is given.
+    pub needle_yield_steps: usize,
     /// Steps in which the controller reported the target unreachable (no joint update
     /// improves the objective by 1 %).
     pub unreachable_steps: usize,
@@ -288,6 +291,8 @@ pub struct Statistics {
     max_strain: f64,
     max_inverted: usize,
     needle_strain: f64,
+    /// The needle's largest strain after each step, in step order.
+    needle_strains: Vec<f64>,
     /// Where the largest needle strain was: its distance from the tip and the tip's depth [mm].
     needle_bend_at: (f64, f64),
     last_step: usize,
@@ -303,6 +308,7 @@ impl Statistics {
             max_strain: 0.0,
             max_inverted: 0,
             needle_strain: 0.0,
+            needle_strains: Vec::with_capacity(steps),
             needle_bend_at: (0.0, 0.0),
             last_step: steps.saturating_sub(1),
             path: PathMetrics::default(),
@@ -336,6 +342,7 @@ impl<const N: usize> Observer<N> for Statistics {
             self.max_inverted = self.max_inverted.max(st.inverted);
         }
         let (bend, from_tip) = world.needle.max_bending_strain();
+        self.needle_strains.push(bend);
         let larger = worst(self.needle_strain, bend);
         if larger.to_bits() != self.needle_strain.to_bits() {
             let depth = if r.inserted { r.depth } else { 0.0 };
@@ -360,6 +367,14 @@ fn worst(max: f64, sample: f64) -> f64 {
 /// (a NaN strain counts as past it: the state it was sampled from is not to be trusted).
 fn yielded(strain: f64, yield_strain: Option<f64>) -> bool {
     yield_strain.is_some_and(|y| strain.is_nan() || strain > y)
+}
+
+/// How many of the steps' strains are past `yield_strain` ([`yielded`]).
+fn yield_steps(strains: &[f64], yield_strain: Option<f64>) -> usize {
+    strains
+        .iter()
+        .filter(|s| yielded(**s, yield_strain))
+        .count()
 }
 
 /// How a run ended, for its summary.
@@ -457,10 +472,12 @@ impl Statistics {
             path_deviation_max_mm: deviation.1,
         });
         let needle_yielded = yielded(self.needle_strain, plan.needle_yield_strain);
+        let needle_yield_steps = yield_steps(&self.needle_strains, plan.needle_yield_strain);
         if needle_yielded {
             tracing::warn!(
                 "scene `{}`: the needle was bent to {:.2} % at its surface, past its yield strain \
-                 {:.2} % (needle.yield_strain): a real needle would keep the bend",
+                 {:.2} % (needle.yield_strain) after {needle_yield_steps} steps: a real needle \
+                 would keep the bend",
                 plan.name,
                 100.0 * self.needle_strain,
                 100.0 * plan.needle_yield_strain.unwrap_or(f64::NAN)
@@ -534,6 +551,7 @@ impl Statistics {
             needle_strain_tip_depth_mm: self.needle_bend_at.1,
             needle_yield_strain: plan.needle_yield_strain,
             needle_strain_bounded: plan.needle_strain_bounded,
+            needle_yield_steps,
             needle_yielded,
             unreachable_steps: count_flag(reports, StatusFlags::TARGET_UNREACHABLE),
             limit_steps: count_flag(reports, StatusFlags::SATURATED_LIMIT),
@@ -608,6 +626,10 @@ mod tests {
         assert!(!yielded(0.002, Some(0.008)));
         assert!(yielded(f64::NAN, Some(0.008)));
         assert!(!yielded(0.5, None));
+        let steps = [0.002, 0.009, 0.021, 0.007, f64::NAN, 0.0081];
+        assert_eq!(yield_steps(&steps, Some(0.008)), 3, "0.021, NaN and 0.0081");
+        assert_eq!(yield_steps(&steps, None), 0);
+        assert_eq!(yield_steps(&[], Some(0.008)), 0);
     }
 
     fn at(inserted: bool) -> StepReport {
