@@ -627,7 +627,11 @@ mod tests {
         assert!(yielded(f64::NAN, Some(0.008)));
         assert!(!yielded(0.5, None));
         let steps = [0.002, 0.009, 0.021, 0.007, f64::NAN, 0.0081];
-        assert_eq!(yield_steps(&steps, Some(0.008)), 3, "0.021, NaN and 0.0081");
+        assert_eq!(
+            yield_steps(&steps, Some(0.008)),
+            4,
+            "0.009, 0.021, NaN and 0.0081"
+        );
         assert_eq!(yield_steps(&steps, None), 0);
         assert_eq!(yield_steps(&[], Some(0.008)), 0);
     }
