@@ -169,8 +169,8 @@ pub struct RunSummary {
     pub max_inverted_elements: usize,
     /// Largest bending strain at the needle's outer surface, `r_o |κ|`, after every step
     /// ([`crate::fem::beam::CorotationalBeams::max_bending_strain`]; NaN once a step's was)
-    /// [-]. The needle's model is linear elastic: a strain above its material's yield strain `σ_y / E` is a bend a
-    /// real needle would keep.
+    /// [-]. The needle's model is linear elastic: a strain above its material's yield strain
+    /// `σ_y / E` is a bend a real needle would keep.
     pub needle_strain_max: f64,
     /// Where that strain was: its distance from the needle's tip along the needle [mm] (0 for
     /// a needle that never bent) ...
@@ -285,7 +285,8 @@ pub struct RunSummary {
 }
 
 /// What the summary needs beyond the reports, gathered step by step: the smallest clearance
-/// per obstacle and the gel's strain (sampled every [`STRAIN_EVERY`] steps and at the last).
+/// per obstacle, the needle's strain after every step and the gel's (sampled every
+/// [`STRAIN_EVERY`] steps and at the last).
 pub struct Statistics {
     min_clearance: Vec<f64>,
     max_strain: f64,

@@ -115,9 +115,9 @@ pub fn rows_behind(max_base_step: f64) -> usize {
 /// of the inserted needle points every [`BEHIND_SPACING_MM`] behind each nearest point over the
 /// step's largest advance `max_base_step` ([`rows_behind`]), lowest clearance first. With a
 /// bound on the entry point's shift (`max_entry_shift`) its row comes first
-/// ([`entry_shift_row`]), and with a yield strain (`yield_strain`) the rows of the most bent nodes next
-/// ([`bending_rows`], also before the puncture). No obstacle row before puncture (nothing is
-/// inserted).
+/// ([`entry_shift_row`]), and with a yield strain (`yield_strain`) the rows of the most bent
+/// nodes next ([`bending_rows`], also before the puncture). No obstacle row before puncture
+/// (nothing is inserted).
 pub fn clearance_observations<const N: usize>(
     world: &World<N>,
     free: &FreePositions,
@@ -139,8 +139,9 @@ pub fn clearance_observations<const N: usize>(
 /// the strain a tenth under the yield strain.
 pub const BEND_ROW_SCALE_MM: f64 = 2.0;
 
-/// The share of the yield strain from which a node gets a bending row [-]: a node bent less
-/// cannot pass the yield strain within a step of the trust region.
+/// The share of the yield strain from which a node gets a bending row [-]. A choice, not a
+/// proof: the frame holds 8 clearance rows in all, and a node bent less is taken not to pass
+/// the yield strain within one step.
 const BEND_ROW_FROM: f64 = 0.5;
 
 /// The most bending rows of a frame (the nodes bent most, each the most of its neighbours).
