@@ -197,6 +197,17 @@ pub struct Observation {
     pub free: Vector3<f64>,
 }
 
+/// What a clearance row of the frame bounds.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ClearanceKind {
+    /// An obstacle's margin: the obstacle's index in the scene's order.
+    Obstacle(usize),
+    /// The bound on the entry point's shift (`inverse.max_entry_shift`).
+    EntryShift,
+    /// The needle's yield strain at a node (counted from the base, node 0 at the flange).
+    Bending(usize),
+}
+
 /// An obstacle seen by the controller: the nearest point `p` of the inserted needle, the
 /// obstacle's point `s` it is measured to, and the clearance linearised at the start of the
 /// step, `d ≈ clearance + nᵀ ((p − s) − current)`.
@@ -215,6 +226,8 @@ pub struct ClearanceObservation {
     /// `p − s` at the start of the step (before the free motion), where the distance is
     /// linearised [mm].
     pub current: Vector3<f64>,
+    /// What the row bounds.
+    pub kind: ClearanceKind,
 }
 
 /// All rows and observations of one step.

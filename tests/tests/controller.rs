@@ -339,6 +339,28 @@ fn a_needle_given_its_yield_strain_is_kept_under_it() {
     assert_ne!(bounded.outcome, needle_host::run::Outcome::Diverged);
 }
 
+/// Where the yield strain and the path cannot both be kept, the bending rows hold the needle
+/// and the run stops as blocked, saying so: the public `scurve_x` given 0.8 % is held at the
+/// clamp 24.5 mm deep with its needle at 0.72 %.
+#[test]
+#[ignore = "an insertion of 380 steps (release, ~1 s): run with --include-ignored"]
+fn a_needle_held_at_its_yield_strain_is_stopped_as_blocked_by_it() {
+    let scene = suite_scene("scurve_x")
+        .with_overrides(&[("needle.yield_strain".into(), "0.008".into())])
+        .expect("override");
+    let s = run(&scene, &RunOptions::default(), |_| {})
+        .expect("the run starts")
+        .summary;
+    let why = s.stop_reason.as_ref().expect("a stop reason");
+    assert!(
+        matches!(why, needle_host::run::StopReason::Blocked { by, .. }
+            if by == "the needle's yield strain (needle.yield_strain) at the clamp"),
+        "{why:?}"
+    );
+    assert_eq!(s.outcome, needle_host::run::Outcome::MissedTarget);
+    assert!(!s.needle_yielded && s.needle_strain_max <= 0.008);
+}
+
 /// The bending rows' linear model (`clearance_free + clearance_c λ` of the frame, the
 /// controller's prediction) against the strain measured after the step's corrective motion,
 /// `S (1 − ε/ε_y)` (`S` = `BEND_ROW_SCALE_MM`), on the public `scurve_x` (no obstacle: every

@@ -68,6 +68,11 @@ fn needle_thin_held_at_its_clearance_margin_is_stopped_as_blocked() {
     assert!(min > 0.0, "obstacle hit: {min} mm");
     assert!(s.steps < 617, "ran to the end: {} steps", s.steps);
     assert!(s.stopped.as_deref().is_some_and(|m| m.contains("blocked")));
+    // It says what held it: the row nearest its bound at the held steps.
+    assert!(
+        matches!(why, StopReason::Blocked { by, .. } if by == "the margin of obstacle `o1`"),
+        "{why:?}"
+    );
 }
 
 /// The clearance rows behind the needle point nearest to an obstacle reach as far as the needle

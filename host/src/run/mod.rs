@@ -451,7 +451,8 @@ pub fn run_setup_until<const N: usize>(
     let mut books = Books {
         stats: Statistics::new(&world, n),
         watchdog: Watchdog::new(&world),
-        blocked: Blocked::new(params.dt, params.insertion.advance_per_step),
+        blocked: Blocked::new(params.dt, params.insertion.advance_per_step)
+            .naming(&plan.obstacle_names),
         files,
     };
     // Grown step by step: `steps` may be far more than the run will reach.

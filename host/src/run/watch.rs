@@ -7,6 +7,7 @@
 // Units are written in brackets ([mm], [N]) as in the workspace style: not intra-doc links.
 #![allow(rustdoc::broken_intra_doc_links)]
 
+use crate::constraints::ClearanceKind;
 use crate::fem::tetra::StrainStats;
 use crate::step::StepReport;
 use crate::world::World;
@@ -95,6 +96,8 @@ pub enum StopReason {
         steps: usize,
         /// Their duration [s].
         seconds: f64,
+        /// What held the last of them, e.g. "o1's margin" (empty: not known).
+        by: String,
     },
     /// The caller's observer asked the run to stop ([`super::run_until`]; e.g. a Python
     /// callback that raised).
@@ -161,13 +164,20 @@ impl fmt::Display for StopReason {
             Self::StepFailed { message } => write!(f, "{message}"),
             Self::NoCommand { waited_s } => write!(f, "no command for {waited_s:.1} s"),
             Self::IkFailed { message } => write!(f, "{message}"),
-            Self::Blocked { steps, seconds } => write!(
-                f,
-                "blocked: for {seconds:.1} s ({steps} steps) a clearance row (an obstacle's \
-                 margin, the bound on the entry point's shift, or the needle's yield strain) \
-                 held the needle, the target stayed out of reach and the tip did not advance; \
-                 stopped rather than push past it"
-            ),
+            Self::Blocked { steps, seconds, by } => {
+                let by = if by.is_empty() {
+                    "a clearance row (an obstacle's margin, the bound on the entry point's \
+                     shift, or the needle's yield strain)"
+                } else {
+                    by
+                };
+                write!(
+                    f,
+                    "blocked: for {seconds:.1} s ({steps} steps) {by} held the needle, the \
+                     target stayed out of reach and the tip did not advance; stopped rather than \
+                     push past it"
+                )
+            }
             Self::Interrupted => write!(f, "stopped by the caller"),
         }
     }
@@ -198,6 +208,10 @@ pub struct Blocked {
     min_move: f64,
     /// The depths after the last `limit + 1` steps, oldest first [mm].
     depths: std::collections::VecDeque<f64>,
+    /// What held the last held step ([`StepReport::holding`]).
+    holding: Option<ClearanceKind>,
+    /// The obstacles' names, in the scene's order.
+    names: Vec<String>,
 }
 
 impl Blocked {
@@ -222,6 +236,35 @@ impl Blocked {
                 0.0
             },
             depths: std::collections::VecDeque::with_capacity(limit + 1),
+            holding: None,
+            names: Vec::new(),
+        }
+    }
+
+    /// Names the obstacles (in the scene's order) in the reason to stop.
+    #[must_use]
+    pub fn naming(mut self, obstacles: &[String]) -> Self {
+        self.names = obstacles.to_vec();
+        self
+    }
+
+    /// What a row of `kind` bounds, in words.
+    fn describe(&self, kind: ClearanceKind) -> String {
+        match kind {
+            ClearanceKind::Obstacle(i) => match self.names.get(i) {
+                Some(name) => format!("the margin of obstacle `{name}`"),
+                None => format!("the margin of obstacle {}", i + 1),
+            },
+            ClearanceKind::EntryShift => {
+                "the bound on the entry point's shift (inverse.max_entry_shift)".to_owned()
+            }
+            ClearanceKind::Bending(0) => {
+                "the needle's yield strain (needle.yield_strain) at the clamp".to_owned()
+            }
+            ClearanceKind::Bending(node) => format!(
+                "the needle's yield strain (needle.yield_strain) at its node {node} from the \
+                 clamp"
+            ),
         }
     }
 
@@ -236,8 +279,10 @@ impl Blocked {
         let held = StatusFlags::CLEARANCE_ACTIVE | StatusFlags::TARGET_UNREACHABLE;
         if r.solver.flags & held == held {
             self.run += 1;
+            self.holding = r.holding.or(self.holding);
         } else {
             self.run = 0;
+            self.holding = None;
         }
         if self.run < self.limit {
             return None;
@@ -250,9 +295,10 @@ impl Blocked {
         };
         // NaN depths count as not moving: a held run with no usable depth stops as before.
         let moving = self.min_move > 0.0 && moved >= self.min_move;
-        (!moving).then_some(StopReason::Blocked {
+        (!moving).then(|| StopReason::Blocked {
             steps: self.run,
             seconds: self.run as f64 * self.dt,
+            by: self.holding.map(|k| self.describe(k)).unwrap_or_default(),
         })
     }
 }
@@ -392,6 +438,48 @@ mod tests {
         // A nonsensical period still gives a limit of at least one step.
         let mut b = Blocked::new(f64::NAN, 0.1);
         assert!(b.after_step(&report(held)).is_some());
+    }
+
+    /// A blocked run says what held it: the row nearest its bound at its held steps
+    /// (`StepReport::holding`), an obstacle by its name; the generic words when no step said.
+    #[test]
+    fn a_blocked_run_names_what_held_it() {
+        let held = StatusFlags::CLEARANCE_ACTIVE | StatusFlags::TARGET_UNREACHABLE;
+        let names = ["o1".to_owned(), "vessel".to_owned()];
+        let stop = |holding: Option<ClearanceKind>| {
+            let mut b = Blocked::new(0.04, 0.1).naming(&names);
+            let mut r = report(held);
+            r.holding = holding;
+            (0..25)
+                .find_map(|_| b.after_step(&r))
+                .expect("blocked")
+                .to_string()
+        };
+        let by = |s: String| s.split(" held the needle").next().unwrap_or("").to_owned();
+        assert_eq!(
+            by(stop(Some(ClearanceKind::Obstacle(1)))),
+            "blocked: for 1.0 s (25 steps) the margin of obstacle `vessel`"
+        );
+        assert!(
+            by(stop(Some(ClearanceKind::Bending(0))))
+                .ends_with("(needle.yield_strain) at the clamp")
+        );
+        assert!(
+            by(stop(Some(ClearanceKind::Bending(3)))).ends_with("at its node 3 from the clamp")
+        );
+        assert!(by(stop(Some(ClearanceKind::EntryShift))).ends_with("(inverse.max_entry_shift)"));
+        assert!(by(stop(Some(ClearanceKind::Obstacle(7)))).ends_with("obstacle 8"));
+        assert!(by(stop(None)).ends_with("or the needle's yield strain)"));
+        // What held the steps of an earlier run of held steps is forgotten with it.
+        let mut b = Blocked::new(0.04, 0.1).naming(&names);
+        let mut r = report(held);
+        r.holding = Some(ClearanceKind::Obstacle(0));
+        assert!(b.after_step(&r).is_none());
+        assert!(b.after_step(&report(0)).is_none());
+        let why = (0..25)
+            .find_map(|_| b.after_step(&report(held)))
+            .expect("blocked");
+        assert!(!why.to_string().contains("o1"), "{why}");
     }
 
     fn inserted(flags: u32, depth: f64) -> StepReport {

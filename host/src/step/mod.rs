@@ -38,7 +38,9 @@ pub use params::{
 };
 
 use crate::compliance::{NodeColumns, PointColumns, PointMap};
-use crate::constraints::{ClearanceObservation, ConstraintSet, GroupRole, Model, Observation};
+use crate::constraints::{
+    ClearanceKind, ClearanceObservation, ConstraintSet, GroupRole, Model, Observation,
+};
 use crate::error::{Body, CommandMismatch, NonFiniteAt, SimError};
 use crate::joints::{Joints, MAX_JOINTS, normalised_limit_margin};
 use crate::proximity::{CachedProjector, Embedded};
@@ -46,7 +48,7 @@ use crate::world::World;
 use nalgebra::Vector3;
 use needle_bridge::Transport;
 use needle_core::kinematics::Kinematics as _;
-use needle_core::payload::{Command, ComplianceFrame, SolverReport, VERSION};
+use needle_core::payload::{Command, ComplianceFrame, SolverReport, StatusFlags, VERSION};
 use std::time::Instant;
 
 /// Row capacity of the frames a pipeline builds: 6 base rows + 3 contact rows + 3 rows for each
@@ -133,6 +135,9 @@ pub struct StepReport {
     pub forces: Vec<ConstraintForce>,
     /// The constraints' forces on each needle node (translational) [N].
     pub needle_node_forces: Vec<Vector3<f64>>,
+    /// When a clearance row held the step (the core's `CLEARANCE_ACTIVE`), what the row
+    /// nearest its bound after it bounds: the one that held it.
+    pub holding: Option<ClearanceKind>,
 }
 
 impl StepReport {
@@ -204,6 +209,8 @@ pub struct Pipeline<const N: usize = 6> {
     /// from the free positions the frame is then built from (taken by the compliance stage,
     /// which otherwise makes them).
     observed: Option<([Observation; 5], Vec<ClearanceObservation>)>,
+    /// What each clearance row of the last frame bounds, in the frame's order.
+    row_kinds: Vec<ClearanceKind>,
     /// The stage times of the last step.
     pub times: StageTimes,
 }
@@ -235,6 +242,7 @@ impl<const N: usize> Pipeline<N> {
             far_pending: false,
             defer_next: true,
             observed: None,
+            row_kinds: Vec::new(),
             times: StageTimes::default(),
         }
     }
@@ -492,6 +500,7 @@ impl<const N: usize> Pipeline<N> {
         };
         self.set.fill_frame(&observations, &mut self.frame);
         self.set.fill_clearances(&clearances, &mut self.frame);
+        self.row_kinds = clearances.iter().map(|c| c.kind).collect();
         observe::fill_header(
             &mut self.frame,
             world,
@@ -540,7 +549,21 @@ impl<const N: usize> Pipeline<N> {
             times: self.times,
             forces: group_forces,
             needle_node_forces,
+            holding: self.holding(),
         }
+    }
+
+    /// What the clearance row nearest its bound after the step (by the frame's linear model at
+    /// the step's `λ`) bounds, when a clearance row held the step; none otherwise.
+    fn holding(&self) -> Option<ClearanceKind> {
+        if self.command.report.flags & StatusFlags::CLEARANCE_ACTIVE == 0 {
+            return None;
+        }
+        let rows = self.frame.clearances().min(self.row_kinds.len());
+        (0..rows)
+            .map(|k| (self.frame.clearance(k, &self.command.lambda), k))
+            .min_by(|a, b| a.0.total_cmp(&b.0))
+            .map(|(_, k)| self.row_kinds[k])
     }
 
     /// The last frame handed to the core (diagnostics, transports).

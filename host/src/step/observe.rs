@@ -5,7 +5,7 @@
 
 use super::{FreePositions, ROWS, StepParams};
 use crate::compliance::PointMap;
-use crate::constraints::{ClearanceObservation, Model, Observation};
+use crate::constraints::{ClearanceKind, ClearanceObservation, Model, Observation};
 use crate::step::rows::gel_map;
 use crate::world::{Obstacle, World};
 use nalgebra::{Matrix3, Rotation3, Vector3};
@@ -230,6 +230,7 @@ fn bending_rows_of(
             clearance: BEND_ROW_SCALE_MM * (1.0 - strain / yield_strain),
             normal: -normal,
             current: d * g,
+            kind: ClearanceKind::Bending(k),
         });
     }
     rows
@@ -252,6 +253,7 @@ fn entry_shift_row<const N: usize>(
         clearance: max_entry_shift - len,
         normal: -s / len,
         current: world.entry_point(),
+        kind: ClearanceKind::EntryShift,
     })
 }
 
@@ -303,7 +305,8 @@ fn obstacle_rows<const N: usize>(
     let mut seen: Vec<(f64, ClearanceObservation)> = world
         .obstacles
         .iter()
-        .filter_map(|o| match o {
+        .enumerate()
+        .filter_map(|(index, o)| match o {
             Obstacle::Sphere {
                 centre: e,
                 radius: r,
@@ -351,6 +354,7 @@ fn obstacle_rows<const N: usize>(
                                 clearance: dist - r,
                                 normal: current / dist,
                                 current,
+                                kind: ClearanceKind::Obstacle(index),
                             },
                         ));
                     }
@@ -363,6 +367,7 @@ fn obstacle_rows<const N: usize>(
                         clearance: dist - r,
                         normal,
                         current,
+                        kind: ClearanceKind::Obstacle(index),
                     },
                 ))
             }
@@ -399,6 +404,7 @@ fn obstacle_rows<const N: usize>(
                                 clearance: b.value,
                                 normal: b.normal,
                                 current: b.point - b.surface_point,
+                                kind: ClearanceKind::Obstacle(index),
                             },
                         ));
                     }
@@ -411,6 +417,7 @@ fn obstacle_rows<const N: usize>(
                         clearance: c.value,
                         normal: c.normal,
                         current: c.point - c.surface_point,
+                        kind: ClearanceKind::Obstacle(index),
                     },
                 ))
             }
