@@ -98,6 +98,10 @@ pub struct StepMetrics {
     /// The needle's largest bending strain at its surface after the step [-]
     /// (`crate::free_motion::NeedleModel::max_bending_strain`).
     pub needle_strain: f64,
+    /// What held the step, when a clearance row did ([`crate::step::StepReport::holding`]):
+    /// `obstacle:K` (the obstacle of the `clearance_K_mm` column), `entry_shift`, `bend:N`
+    /// (the needle's yield strain at node N from the clamp); empty otherwise.
+    pub held_by: String,
 }
 
 /// Writes [`StepMetrics`] rows to a CSV file.
@@ -145,6 +149,7 @@ impl MetricsWriter {
         header.extend((1..=joints).map(|j| format!("q{j}_rad")));
         header.push("limit_margin".into());
         header.push("needle_strain".into());
+        header.push("held_by".into());
         out.write_record(&header).map_err(err)?;
         Ok(Self {
             out,
@@ -176,6 +181,7 @@ impl MetricsWriter {
         row.extend((0..self.joints).map(|j| m.q.get(j).copied().unwrap_or(f64::NAN).to_string()));
         row.push(m.limit_margin.to_string());
         row.push(m.needle_strain.to_string());
+        row.push(m.held_by.clone());
         self.out
             .write_record(&row)
             .map_err(|e| OutputError::new(&self.file, e))
@@ -216,12 +222,27 @@ mod tests {
             ..Default::default()
         })
         .unwrap();
+        w.write(&StepMetrics {
+            step: 2,
+            needle_strain: 0.0125,
+            held_by: "obstacle:2".into(),
+            ..Default::default()
+        })
+        .unwrap();
         w.flush().unwrap();
         let text = std::fs::read_to_string(&path).unwrap();
         let lines: Vec<_> = text.lines().collect();
-        assert_eq!(lines.len(), 2);
+        assert_eq!(lines.len(), 3);
         assert_eq!(lines[0].split(',').count(), lines[1].split(',').count());
+        assert_eq!(lines[0].split(',').count(), lines[2].split(',').count());
         assert!(lines[0].contains("clearance_2_mm"));
+        assert!(lines[0].ends_with(",needle_strain,held_by"), "{}", lines[0]);
+        assert!(
+            lines[1].ends_with(",0,"),
+            "nothing held step 1: {}",
+            lines[1]
+        );
+        assert!(lines[2].ends_with(",0.0125,obstacle:2"), "{}", lines[2]);
     }
 
     #[test]

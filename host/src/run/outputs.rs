@@ -3,6 +3,7 @@
 
 use super::Observer;
 use super::summary::RunSummary;
+use crate::constraints::ClearanceKind;
 use crate::output::{MetricsWriter, OutputError, StepMetrics};
 use crate::step::StepReport;
 use crate::world::World;
@@ -48,11 +49,21 @@ impl<const N: usize> Observer<N> for MetricsCsv {
             q: r.q,
             limit_margin: r.limit_margin,
             needle_strain: world.needle.max_bending_strain().0,
+            held_by: r.holding.map(held_by).unwrap_or_default(),
         })
     }
 
     fn finish(&mut self, _: &World<N>, _: &RunSummary) -> Result<(), OutputError> {
         self.0.flush()
+    }
+}
+
+/// The `held_by` entry of `steps.csv` for a row of `kind`.
+fn held_by(kind: ClearanceKind) -> String {
+    match kind {
+        ClearanceKind::Obstacle(k) => format!("obstacle:{k}"),
+        ClearanceKind::EntryShift => "entry_shift".to_owned(),
+        ClearanceKind::Bending(node) => format!("bend:{node}"),
     }
 }
 
