@@ -14,6 +14,20 @@ fn suite_scene(name: &str) -> Scene {
     Scene::load(std::path::Path::new(&path)).expect("suite scene")
 }
 
+/// The summary of a whole run of the public scene `name` with fields overridden (`needle run
+/// --set FIELD=VALUE`).
+fn suite_run(name: &str, overrides: &[(&str, &str)]) -> needle_host::run::RunSummary {
+    let overrides: Vec<(String, String)> = (overrides.iter())
+        .map(|(f, v)| (f.to_string(), v.to_string()))
+        .collect();
+    let scene = suite_scene(name)
+        .with_overrides(&overrides)
+        .expect("override");
+    run(&scene, &RunOptions::default(), |_| {})
+        .expect("the run starts")
+        .summary
+}
+
 /// After every step with the needle inserted, `clearance_free + clearance_c λ` of the frame
 /// (the controller's linear model) against the clearances the simulation measures after the
 /// step's corrective motion: the nearest obstacle within 0.05 mm (first order: the rows hold the
@@ -307,15 +321,13 @@ fn tip_swung_into_the_air_before_puncture_is_bounded_by_the_trust_region() {
 #[ignore = "two insertions of 570 steps (release, ~3 s): run with --include-ignored"]
 fn a_needle_given_its_yield_strain_is_kept_under_it() {
     let end = |bound: &str| {
-        let scene = suite_scene("place_ahead")
-            .with_overrides(&[
-                ("needle.yield_strain".into(), "0.01".into()),
-                ("inverse.bound_strain".into(), bound.into()),
-            ])
-            .expect("override");
-        run(&scene, &RunOptions::default(), |_| {})
-            .expect("the run starts")
-            .summary
+        suite_run(
+            "place_ahead",
+            &[
+                ("needle.yield_strain", "0.01"),
+                ("inverse.bound_strain", bound),
+            ],
+        )
     };
     let (free, bounded) = (end("false"), end("true"));
     eprintln!(
@@ -345,12 +357,7 @@ fn a_needle_given_its_yield_strain_is_kept_under_it() {
 #[test]
 #[ignore = "an insertion of 380 steps (release, ~1 s): run with --include-ignored"]
 fn a_needle_held_at_its_yield_strain_is_stopped_as_blocked_by_it() {
-    let scene = suite_scene("scurve_x")
-        .with_overrides(&[("needle.yield_strain".into(), "0.008".into())])
-        .expect("override");
-    let s = run(&scene, &RunOptions::default(), |_| {})
-        .expect("the run starts")
-        .summary;
+    let s = suite_run("scurve_x", &[("needle.yield_strain", "0.008")]);
     let why = s.stop_reason.as_ref().expect("a stop reason");
     assert!(
         matches!(why, needle_host::run::StopReason::Blocked { by, .. }

@@ -449,7 +449,7 @@ pub fn run_setup_until<const N: usize>(
     let mut remote = Remote::new(core, opts.period, opts.give_up_after);
     let mut pipeline = Pipeline::new(&world);
     let mut books = Books {
-        stats: Statistics::new(&world, n),
+        stats: Statistics::new(&world, n, plan.needle_yield_strain),
         watchdog: Watchdog::new(&world),
         blocked: Blocked::new(params.dt, params.insertion.advance_per_step)
             .naming(&plan.obstacle_names),

@@ -48,7 +48,7 @@ impl<const N: usize> Observer<N> for MetricsCsv {
             ],
             q: r.q,
             limit_margin: r.limit_margin,
-            needle_strain: world.needle.max_bending_strain().0,
+            needle_strain: r.needle_bend.0,
             held_by: r.holding.map(held_by).unwrap_or_default(),
         })
     }

@@ -292,8 +292,9 @@ pub struct Statistics {
     max_strain: f64,
     max_inverted: usize,
     needle_strain: f64,
-    /// The needle's largest strain after each step, in step order.
-    needle_strains: Vec<f64>,
+    /// The needle's yield strain (`needle.yield_strain`), and how many steps ended past it.
+    yield_strain: Option<f64>,
+    yield_steps: usize,
     /// Where the largest needle strain was: its distance from the tip and the tip's depth [mm].
     needle_bend_at: (f64, f64),
     last_step: usize,
@@ -302,14 +303,16 @@ pub struct Statistics {
 }
 
 impl Statistics {
-    /// For a run of `steps` steps of `world`.
-    pub fn new<const N: usize>(world: &World<N>, steps: usize) -> Self {
+    /// For a run of `steps` steps of `world` whose needle yields at `yield_strain` (none: not
+    /// checked).
+    pub fn new<const N: usize>(world: &World<N>, steps: usize, yield_strain: Option<f64>) -> Self {
         Self {
             min_clearance: vec![f64::INFINITY; world.obstacles.len()],
             max_strain: 0.0,
             max_inverted: 0,
             needle_strain: 0.0,
-            needle_strains: Vec::with_capacity(steps),
+            yield_strain,
+            yield_steps: 0,
             needle_bend_at: (0.0, 0.0),
             last_step: steps.saturating_sub(1),
             path: PathMetrics::default(),
@@ -342,8 +345,8 @@ impl<const N: usize> Observer<N> for Statistics {
             self.max_strain = worst(self.max_strain, st.max_strain);
             self.max_inverted = self.max_inverted.max(st.inverted);
         }
-        let (bend, from_tip) = world.needle.max_bending_strain();
-        self.needle_strains.push(bend);
+        let (bend, from_tip) = r.needle_bend;
+        self.yield_steps += usize::from(yielded(bend, self.yield_strain));
         let larger = worst(self.needle_strain, bend);
         if larger.to_bits() != self.needle_strain.to_bits() {
             let depth = if r.inserted { r.depth } else { 0.0 };
@@ -368,14 +371,6 @@ fn worst(max: f64, sample: f64) -> f64 {
 /// (a NaN strain counts as past it: the state it was sampled from is not to be trusted).
 fn yielded(strain: f64, yield_strain: Option<f64>) -> bool {
     yield_strain.is_some_and(|y| strain.is_nan() || strain > y)
-}
-
-/// How many of the steps' strains are past `yield_strain` ([`yielded`]).
-fn yield_steps(strains: &[f64], yield_strain: Option<f64>) -> usize {
-    strains
-        .iter()
-        .filter(|s| yielded(**s, yield_strain))
-        .count()
 }
 
 /// How a run ended, for its summary.
@@ -473,7 +468,7 @@ impl Statistics {
             path_deviation_max_mm: deviation.1,
         });
         let needle_yielded = yielded(self.needle_strain, plan.needle_yield_strain);
-        let needle_yield_steps = yield_steps(&self.needle_strains, plan.needle_yield_strain);
+        let needle_yield_steps = self.yield_steps;
         if needle_yielded {
             tracing::warn!(
                 "scene `{}`: the needle was bent to {:.2} % at its surface, past its yield strain \
@@ -628,13 +623,9 @@ mod tests {
         assert!(yielded(f64::NAN, Some(0.008)));
         assert!(!yielded(0.5, None));
         let steps = [0.002, 0.009, 0.021, 0.007, f64::NAN, 0.0081];
-        assert_eq!(
-            yield_steps(&steps, Some(0.008)),
-            4,
-            "0.009, 0.021, NaN and 0.0081"
-        );
-        assert_eq!(yield_steps(&steps, None), 0);
-        assert_eq!(yield_steps(&[], Some(0.008)), 0);
+        let yield_steps = |y| steps.iter().filter(|s| yielded(**s, y)).count();
+        assert_eq!(yield_steps(Some(0.008)), 4, "0.009, 0.021, NaN and 0.0081");
+        assert_eq!(yield_steps(None), 0);
     }
 
     fn at(inserted: bool) -> StepReport {

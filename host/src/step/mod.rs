@@ -138,6 +138,9 @@ pub struct StepReport {
     /// When a clearance row held the step (the core's `CLEARANCE_ACTIVE`), what the row
     /// nearest its bound after it bounds: the one that held it.
     pub holding: Option<ClearanceKind>,
+    /// The needle's largest bending strain at its surface after the step [-], and its
+    /// distance from the tip [mm] (`crate::free_motion::NeedleModel::max_bending_strain`).
+    pub needle_bend: (f64, f64),
 }
 
 impl StepReport {
@@ -550,6 +553,7 @@ impl<const N: usize> Pipeline<N> {
             forces: group_forces,
             needle_node_forces,
             holding: self.holding(),
+            needle_bend: world.needle.max_bending_strain(),
         }
     }
 
