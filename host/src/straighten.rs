@@ -235,9 +235,10 @@ impl Straightening {
 
     /// The same, with each shown point moved away from the obstacles it is nearer than
     /// `standoff` [mm] to (along their normals, by what it lacks), at most as far as keeps it
-    /// within [`Straightening::max_offset`] of the path's own point. The clearance rows of the update keep
-    /// the needle `clearance_margin` from an obstacle; a target shown at that margin leaves the
-    /// tip no room to lag towards the obstacle, and a shaft held at the margin cannot advance.
+    /// within [`Straightening::max_offset`] of the path's own point. The clearance rows of the
+    /// update keep the needle `clearance_margin` from an obstacle; a target shown at that
+    /// margin leaves the tip no room to lag towards the obstacle, and a shaft held at the
+    /// margin cannot advance.
     pub fn with_standoff(
         mut self,
         path: &SampledPath,
